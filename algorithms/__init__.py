@@ -1,0 +1,31 @@
+"""Optimisers behind one ask/tell interface (see ``algorithms.base``), by registry name."""
+from __future__ import annotations
+
+from .base import BatchedPolicy, GenerationReport, Optimizer
+from .es import ES_ALGORITHMS
+from .neat_optimizer import NeatOptimizer
+
+REGISTRY: dict[str, type[Optimizer]] = {"neat": NeatOptimizer, **ES_ALGORITHMS}
+"""Every optimiser by the name the command line uses."""
+
+
+class UnknownAlgorithmError(ValueError):
+    pass
+
+
+def make_optimizer(name: str, *, obs_dim: int, population_size: int, seed: int,
+                   regularization: float = 0.0, device: str = "cpu", **options) -> Optimizer:
+    """Build the optimiser ``name`` for controllers with ``obs_dim`` inputs and 3 outputs."""
+    try:
+        cls = REGISTRY[name]
+    except KeyError:
+        raise UnknownAlgorithmError(
+            f"unknown algorithm {name!r}: choose one of {', '.join(REGISTRY)}") from None
+    if regularization and not cls.has_regularizer:
+        raise ValueError(f"algorithm {name!r} has no regulariser: drop --reg or use another algorithm")
+    return cls(obs_dim=obs_dim, population_size=population_size, seed=seed,
+               regularization=regularization, device=device, **options)
+
+
+__all__ = ["REGISTRY", "BatchedPolicy", "GenerationReport", "Optimizer", "make_optimizer",
+           "UnknownAlgorithmError"]

@@ -1,0 +1,90 @@
+"""The ask/tell interface every optimiser implements.
+
+One generation of the lifelong loop is::
+
+    policy = optimiser.ask()                       # a BatchedPolicy over the population
+    raw = evaluate(policy, tasks)                  # (population,) mean episode reward
+    regularised = optimiser.regularise(raw)        # raw - lambda * penalty (raw before a drift)
+    report = optimiser.tell(raw, regularised)      # selection uses `regularised`
+    ...
+    optimiser.end_task()                           # at a drift: take the regulariser's reference
+
+Optimisers know nothing about environments, Rerun or files: they see observations and fitness
+tensors only.
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Protocol
+
+import torch
+
+
+class BatchedPolicy(Protocol):
+    """Maps observations of a whole population to controller outputs in one call.
+
+    ``observations``: ``(population, envs, agents, obs_dim)``;
+    returns ``(population, envs, agents, 3)`` outputs in ``[0, 1]``
+    (turned into wheel speeds by ``envs.outputs_to_wheels``).
+    """
+
+    population_size: int
+
+    def __call__(self, observations: torch.Tensor) -> torch.Tensor: ...
+
+
+@dataclass
+class GenerationReport:
+    """What an optimiser tells the loop about the generation it was just told."""
+
+    species_sizes: dict[int, int] | None = None
+    """NEAT species id -> member count; ``None`` for algorithms without species."""
+    extra: dict[str, float] = field(default_factory=dict)
+    """Algorithm-specific scalars (for example the ES step size), logged as they are."""
+
+
+class Optimizer(ABC):
+    """A population-based optimiser behind the ask/tell interface."""
+
+    name: ClassVar[str]
+    """Registry name, e.g. ``"neat"``."""
+    has_regularizer: ClassVar[bool] = True
+    """Whether ``regularization > 0`` means anything for this algorithm."""
+
+    centre_index: int | None = None
+    """Index of the search distribution's centre among the controllers (ES), else ``None``."""
+
+    @property
+    @abstractmethod
+    def population_size(self) -> int:
+        """Number of controllers ``ask`` returns (for an ES: samples + centre)."""
+
+    @abstractmethod
+    def ask(self) -> BatchedPolicy:
+        """The current population as one batched policy."""
+
+    @abstractmethod
+    def regularise(self, fitness: torch.Tensor) -> torch.Tensor:
+        """Selection fitness: ``fitness - lambda * penalty``; ``fitness`` itself before the first drift."""
+
+    @abstractmethod
+    def tell(self, fitness: torch.Tensor, selection_fitness: torch.Tensor) -> GenerationReport:
+        """Advance one generation; ``selection_fitness`` drives selection/update."""
+
+    @abstractmethod
+    def end_task(self) -> None:
+        """Called after the last generation of a task: take the regulariser's reference."""
+
+    @abstractmethod
+    def state_dict(self) -> dict[str, Any]:
+        """Everything needed to continue bit-for-bit (used by checkpoints)."""
+
+    @abstractmethod
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore what ``state_dict`` returned."""
+
+    @abstractmethod
+    def export(self, index: int) -> dict[str, Any]:
+        """Controller ``index`` of the last asked population in a safe, shareable form
+        (JSON-serialisable values or tensors, never pickles)."""

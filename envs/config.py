@@ -1,0 +1,161 @@
+"""Environment options and tasks, validated in one place.
+
+Defaults are the paper's (../shared/docs/foraging-spec.md). Lengths are in robot diameters.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+
+COLOR_IDS: dict[str, int] = {
+    "red": 3, "blue": 4, "green": 5, "yellow": 6, "purple": 7, "white": 8, "cyan": 9, "black": 10,
+}
+"""Entity type ids of the box colours (0 nothing, 1 wall, 2 agent)."""
+COLOR_NAMES: dict[int, str] = {v: k for k, v in COLOR_IDS.items()}
+NOTHING, WALL, AGENT = 0, 1, 2
+
+
+class ConfigError(ValueError):
+    """A configuration value that cannot work; the message names the field and the fix."""
+
+
+@dataclass(frozen=True)
+class Task:
+    """A foraging task: the colour to fetch and the colours boxes may have this season."""
+
+    target: int
+    """Colour id of the boxes that earn reward."""
+    season: tuple[int, ...]
+    """Colour ids boxes are drawn from; must contain ``target``."""
+    name: str = ""
+    """Display name; defaults to the target colour's name."""
+
+    def __post_init__(self):
+        object.__setattr__(self, "season", tuple(int(c) for c in self.season))
+        if not self.name:
+            object.__setattr__(self, "name", COLOR_NAMES.get(self.target, f"colour{self.target}"))
+
+
+TASKS: dict[str, Task] = {
+    "red": Task(3, (3, 4)),
+    "green": Task(5, (5, 6)),
+    "purple": Task(7, (7, 8)),
+    "cyan": Task(9, (9, 10)),
+}
+"""The paper's tasks, by name."""
+
+
+def task_by_name(name: str) -> Task:
+    try:
+        return TASKS[name]
+    except KeyError:
+        raise ConfigError(f"unknown task {name!r}: choose one of {', '.join(TASKS)}") from None
+
+
+@dataclass(frozen=True)
+class ForagingConfig:
+    """Static options of the foraging arena (the paper's defaults)."""
+
+    size: float = 20.0
+    """Side of the square arena."""
+    n_agents: int = 5
+    """Robots in the swarm; all run the same controller."""
+    n_boxes: int = 20
+    """Boxes in the arena."""
+    n_neighbors: int = 3
+    """Nearest sensed entities in each observation."""
+    sensor_range: float = 4.0
+    """Sensing radius (walls strictly inside, boxes and agents inclusive)."""
+    max_wheel_velocity: float = 2.0
+    """Wheel speed limit, units per second."""
+    sensitivity: float = 0.5
+    """Pick-up radius (strict)."""
+    time_step: float = 0.1
+    """Seconds per step."""
+    duration: int = 500
+    """Steps per episode."""
+    max_retrieves: int = 20
+    """Correct retrievals that end an episode early."""
+    rate_target: float = 0.5
+    """Fraction of boxes with the target colour at reset."""
+    repositioning: bool = True
+    """Dropped boxes respawn in the arena (else they are gone)."""
+    see_other_agents: bool = False
+    """Agents sense each other (the paper's table: off; the original driver: on)."""
+    colors: tuple[int, ...] = (3, 4, 5, 6)
+    """Colour ids the arena knows: contiguous from 3. Fixes the observation size."""
+
+    def __post_init__(self):
+        object.__setattr__(self, "colors", tuple(int(c) for c in self.colors))
+        self._validate()
+
+    def _validate(self):
+        for name in ("n_agents", "n_boxes", "n_neighbors", "duration", "max_retrieves"):
+            if int(getattr(self, name)) < 1:
+                raise ConfigError(f"{name} must be an integer >= 1, got {getattr(self, name)}")
+        for name in ("sensor_range", "max_wheel_velocity", "sensitivity", "time_step"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.size < 8:
+            # boxes are placed at integer cells x in [6, size-1), y in [2, size-1)
+            raise ConfigError(f"size must be >= 8 so that boxes have cells to spawn in, got {self.size}")
+        if not 0.0 <= self.rate_target <= 1.0:
+            raise ConfigError(f"rate_target must be in [0, 1], got {self.rate_target}")
+        expected = tuple(range(3, 3 + len(self.colors)))
+        if len(self.colors) < 1 or self.colors != expected:
+            raise ConfigError(
+                f"colors must be the contiguous ids 3..{2 + max(len(self.colors), 1)} in order "
+                f"(they index the observation one-hot), got {list(self.colors)}")
+        cells = (math.ceil(self.size - 1) - 6) * (math.ceil(self.size - 1) - 2)
+        if self.n_boxes > cells // 4:
+            raise ConfigError(
+                f"n_boxes={self.n_boxes} cannot be placed 2 apart in a size-{self.size} arena: "
+                f"use at most {cells // 4} boxes or a larger size")
+
+    @property
+    def n_colors(self) -> int:
+        return len(self.colors)
+
+    @property
+    def n_types(self) -> int:
+        """Entity types in the one-hot: nothing, wall, agent and each colour."""
+        return self.n_colors + 3
+
+    @property
+    def obs_dim(self) -> int:
+        """Length of one agent's observation: 41 for 4 colours and 3 neighbours, 61 for 8."""
+        c, n = self.n_colors, self.n_neighbors
+        return (c + 3) * n + 3 * n + 2 + (c + 1) + c
+
+    def check_task(self, task: Task) -> None:
+        """Raise ConfigError unless ``task`` can run in this arena."""
+        known = set(self.colors)
+        for colour in (task.target, *task.season):
+            if colour not in known:
+                raise ConfigError(
+                    f"task {task.name!r} uses colour id {colour}, which this arena does not know "
+                    f"(colors={list(self.colors)}): add it to colors")
+        if task.target not in task.season:
+            raise ConfigError(f"task {task.name!r}: target {task.target} is not in its season {list(task.season)}")
+        n_target = int(self.n_boxes * self.rate_target)
+        if n_target < self.n_boxes and len(set(task.season) - {task.target}) == 0:
+            raise ConfigError(
+                f"task {task.name!r}: the season has no colour besides the target, but "
+                f"{self.n_boxes - n_target} boxes need one: add a colour or set rate_target=1")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "ForagingConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ConfigError(f"unknown environment option(s) {unknown}: valid ones are {sorted(known)}")
+        return cls(**values)
+
+
+def colors_for_tasks(tasks) -> tuple[int, ...]:
+    """The smallest contiguous colour list (from id 3) that holds every colour of ``tasks``."""
+    top = max(max(t.season) for t in tasks)
+    return tuple(range(3, top + 1))
