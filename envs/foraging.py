@@ -1,0 +1,539 @@
+"""The batched swarm-foraging environment (../shared/docs/foraging-spec.md), in pure torch.
+
+The state a user sees (``ForagingState``) has the batch of ``B`` environments as its first
+dimension. Inside, the arena is kept batch-last (``(agents, B)``, ``(boxes, B)``), because the
+per-step reductions over boxes then vectorise across environments; ``step`` has no Python loop
+over environments or agents. Every environment carries its own task
+(target colour and season colours), so one call can score a population on several tasks.
+
+Coordinates are ``(x, y)`` with x the vertical axis: x = 0 is the top edge, where the drop zone
+is. Boxes always sit on integer cells (placement and respawn draw integers), which is what makes
+the vectorised pick-conflict resolution in ``_resolve_picks`` exact.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+from typing import Sequence
+
+import torch
+
+from .config import AGENT, WALL, ConfigError, ForagingConfig, Task
+
+KINEMATICS = ((-0.28867513, -0.57735027, 0.8660254), (0.5, -1.0, 0.5), (0.5, 0.0, 0.5))
+"""(vx, vy, r) = KINEMATICS @ wheel speeds, for the three omni-wheels."""
+WHEEL_RADIUS_FACTOR = 12.5
+"""r / 12.5 is the angular velocity (the original code divides by half the robot size in cm)."""
+BOX_LOW = (6, 2)
+"""Lowest (x, y) cell a box is placed or respawned on; the highest is size - 2."""
+MIN_BOX_SPACING = 2.0
+"""Initial boxes are redrawn until this far from every earlier box."""
+_HASH_MASK = 0x7FFFFFFF
+
+
+@dataclass
+class ForagingState:
+    """The full state of a batch; every field has the batch as its first dimension."""
+
+    agent_pos: torch.Tensor
+    """(B, A, 2) float: agent (x, y)."""
+    heading: torch.Tensor
+    """(B, A) float: heading in degrees, [0, 360)."""
+    carrying: torch.Tensor
+    """(B, A) long: index of the carried box, -1 for none."""
+    box_pos: torch.Tensor
+    """(B, K, 2) float: box cell (meaningless while carried or gone)."""
+    box_color: torch.Tensor
+    """(B, K) long: colour id of each box."""
+    box_present: torch.Tensor
+    """(B, K) bool: the box lies in the arena (not carried, not gone)."""
+    target: torch.Tensor
+    """(B,) long: target colour id."""
+    season: torch.Tensor
+    """(B, n_colors) bool: colours the season may draw (index = colour - 3)."""
+    steps: torch.Tensor
+    """(B,) long: steps taken in this episode."""
+    retrieved: torch.Tensor
+    """(B,) long: correct retrievals in this episode."""
+    done: torch.Tensor
+    """(B,) bool: the episode has ended (max retrievals or duration)."""
+    respawn_key: torch.Tensor
+    """(B,) long: key of the counter-based stream that places respawned boxes."""
+
+    def clone(self) -> "ForagingState":
+        return ForagingState(**{f.name: getattr(self, f.name).clone() for f in fields(self)})
+
+    def index(self, which) -> "ForagingState":
+        """The sub-batch ``which`` (an index, slice, list or mask) of every field."""
+        return ForagingState(**{f.name: getattr(self, f.name)[which] for f in fields(self)})
+
+    def to(self, device) -> "ForagingState":
+        return ForagingState(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
+
+    @staticmethod
+    def cat(states: Sequence["ForagingState"]) -> "ForagingState":
+        return ForagingState(**{f.name: torch.cat([getattr(s, f.name) for s in states])
+                                for f in fields(ForagingState)})
+
+
+def outputs_to_wheels(outputs: torch.Tensor, config: ForagingConfig) -> torch.Tensor:
+    """Controller outputs in [0, 1] -> wheel speeds ``(2 * out - 1) * max_wheel_velocity``."""
+    return (2.0 * outputs - 1.0) * config.max_wheel_velocity
+
+
+def hash31(x: torch.Tensor) -> torch.Tensor:
+    """A 31-bit integer mixer (no int64 overflow, so identical on every device and in Python)."""
+    x = ((x >> 16) ^ x) * 0x45D9F3B & _HASH_MASK
+    x = ((x >> 16) ^ x) * 0x45D9F3B & _HASH_MASK
+    return (x >> 16) ^ x
+
+
+def respawn_cells(key: torch.Tensor, steps: torch.Tensor, n_agents: int, size: int) -> torch.Tensor:
+    """Cell where a box dropped by each agent at this step respawns: ``(A, B, 2)`` long.
+
+    A counter-based stream keyed by (environment key, step, agent): the k-th respawn of an
+    environment does not depend on what else is in the batch, so every controller of a
+    generation sees the same environments.
+    """
+    agents = torch.arange(n_agents, device=key.device)[:, None]
+    base = hash31(hash31(key & _HASH_MASK) ^ steps)[None, :] ^ (agents * 2)
+    hx, hy = hash31(base), hash31(base ^ 1)
+    high = size - 1
+    x = BOX_LOW[0] + hx % (high - BOX_LOW[0])
+    y = BOX_LOW[1] + hy % (high - BOX_LOW[1])
+    return torch.stack((x, y), dim=-1)
+
+
+@dataclass
+class _Arena:
+    """The working state, batch-last; see ``ForagingState`` for the meaning of each field."""
+
+    ax: torch.Tensor          # (A, B) agent x
+    ay: torch.Tensor          # (A, B) agent y
+    heading: torch.Tensor     # (A, B)
+    carrying: torch.Tensor    # (A, B) long, -1 for none
+    bx: torch.Tensor          # (K, B) box x
+    by: torch.Tensor          # (K, B) box y
+    color: torch.Tensor       # (K, B) long
+    present: torch.Tensor     # (K, B) bool
+    target: torch.Tensor      # (B,)
+    season: torch.Tensor      # (B, n_colors)
+    steps: torch.Tensor       # (B,)
+    retrieved: torch.Tensor   # (B,)
+    done: torch.Tensor        # (B,)
+    respawn_key: torch.Tensor  # (B,)
+
+    @staticmethod
+    def from_state(s: ForagingState) -> "_Arena":
+        return _Arena(
+            ax=s.agent_pos[..., 0].T.contiguous(), ay=s.agent_pos[..., 1].T.contiguous(),
+            heading=s.heading.T.contiguous(), carrying=s.carrying.T.contiguous(),
+            bx=s.box_pos[..., 0].T.contiguous(), by=s.box_pos[..., 1].T.contiguous(),
+            color=s.box_color.T.contiguous(), present=s.box_present.T.contiguous(),
+            target=s.target, season=s.season, steps=s.steps, retrieved=s.retrieved, done=s.done,
+            respawn_key=s.respawn_key)
+
+    def to_state(self) -> ForagingState:
+        return ForagingState(
+            agent_pos=torch.stack((self.ax.T, self.ay.T), -1), heading=self.heading.T.clone(),
+            carrying=self.carrying.T.clone(), box_pos=torch.stack((self.bx.T, self.by.T), -1),
+            box_color=self.color.T.clone(), box_present=self.present.T.clone(),
+            target=self.target.clone(), season=self.season.clone(), steps=self.steps.clone(),
+            retrieved=self.retrieved.clone(), done=self.done.clone(), respawn_key=self.respawn_key.clone())
+
+
+class _BoxKeys:
+    """Integer order keys for (distance, index) pairs, so that ``amin`` finds the nearest box and
+    its index in one vectorised reduction (``argmin`` over the box axis is far slower).
+
+    A key is the distance in fixed point, clamped at twice the sensor range (farther boxes are
+    never sensed or picked), shifted left by ``index_bits`` and or-ed with the index: equal
+    distances order by index, as the spec's stable sort does. Distances closer than
+    ``resolution`` (about 1e-7 units for the paper's arena) also count as tied.
+    """
+
+    def __init__(self, n_candidates: int, cap: float):
+        self.index_bits = max(1, (n_candidates - 1).bit_length())
+        self.index_mask = (1 << self.index_bits) - 1
+        self.cap = cap
+        distance_bits = 29 - self.index_bits        # one bit spare for "absent", one for the sign
+        self.scale = float(2 ** (distance_bits - math.ceil(math.log2(cap + 1))))
+        self.absent = 1 << 30                       # above every present key
+        self.resolution = 1.0 / self.scale
+
+    def keys(self, dist: torch.Tensor, absent: torch.Tensor) -> torch.Tensor:
+        """``dist``: (N, A, B); ``absent``: (N, 1, B) bool. Returns (N, A, B) int32 keys."""
+        fixed = torch.addcmul(dist.clamp(max=self.cap) * self.scale, absent.to(dist.dtype),
+                              torch.tensor(float(self.absent >> self.index_bits), dtype=dist.dtype))
+        position = torch.arange(dist.shape[0], dtype=torch.int32, device=dist.device)[:, None, None]
+        return (fixed.to(torch.int32) << self.index_bits) | position
+
+    def index(self, key: torch.Tensor) -> torch.Tensor:
+        return (key & self.index_mask).long()
+
+    def is_absent(self, key: torch.Tensor) -> torch.Tensor:
+        return key >= self.absent
+
+    @staticmethod
+    def next_min(keys: torch.Tensor, previous: torch.Tensor) -> torch.Tensor:
+        """The smallest key above ``previous``: keys <= previous wrap to the top under the
+        sign flip, so one ``amin`` suffices (no masked copy)."""
+        shifted = (keys - (previous + 1)) ^ torch.iinfo(torch.int32).min
+        return (shifted.amin(dim=0) ^ torch.iinfo(torch.int32).min) + previous + 1
+
+
+def _float_order_keys(values: torch.Tensor, index_bits: int) -> torch.Tensor:
+    """float64 keys ordering like ``(value, position along dim 0)`` for values >= 0."""
+    bits = values.double().view(torch.int64)
+    position = torch.arange(values.shape[0], device=values.device, dtype=torch.int64)
+    position = position.view(-1, *([1] * (values.dim() - 1)))
+    return ((bits & ~((1 << index_bits) - 1)) | position).view(torch.float64)
+
+
+class ForagingEnv:
+    """A batch of ``batch_size`` foraging arenas on ``device``.
+
+    ``reset`` samples (or takes) initial states and returns observations ``(B, A, obs_dim)``;
+    ``step(wheels)`` takes wheel speeds ``(B, A, 3)`` and returns
+    ``(observations, rewards (B,), done (B,), info)``; ``state`` reads the full state out.
+    """
+
+    def __init__(self, config: ForagingConfig | None = None, batch_size: int = 1,
+                 device: str | torch.device = "cpu", dtype: torch.dtype = torch.float32):
+        self.config = config or ForagingConfig()
+        if batch_size < 1:
+            raise ConfigError(f"batch_size must be >= 1, got {batch_size}")
+        if dtype not in (torch.float32, torch.float64):
+            raise ConfigError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
+        self.batch_size = batch_size
+        self.device = torch.device(device)
+        self.dtype = dtype
+        c = self.config
+        self._kinematics_t = torch.tensor(KINEMATICS, dtype=dtype, device=self.device).T.contiguous()
+        # sin and cos of the wall directions 0, 180, 90, 270 degrees (top, bottom, left, right)
+        self._wall_sin = torch.tensor([0.0, 0.0, 1.0, -1.0], dtype=dtype, device=self.device)
+        self._wall_cos = torch.tensor([1.0, -1.0, 0.0, 0.0], dtype=dtype, device=self.device)
+        self._types = torch.arange(c.n_types, device=self.device)[:, None, None]
+        self._carry_ids = torch.arange(c.n_colors + 1, device=self.device)[:, None, None]
+        self._colour_ids = torch.arange(3, 3 + c.n_colors, device=self.device)[:, None]
+        n_others = c.n_boxes + (c.n_agents if c.see_other_agents else 0)
+        self._box_keys = _BoxKeys(n_others, cap=2 * max(c.sensor_range, c.sensitivity))
+        self._arena: _Arena | None = None
+
+    # ------------------------------------------------------------------ tasks and reset
+    def task_tensors(self, tasks: Task | Sequence[Task], n: int | None = None):
+        """(target (n,), season (n, n_colors)) for one task or one task per environment."""
+        n = self.batch_size if n is None else n
+        if isinstance(tasks, Task):
+            tasks = [tasks] * n
+        tasks = list(tasks)
+        if len(tasks) != n:
+            raise ConfigError(f"got {len(tasks)} tasks for {n} environments: give one task or one per environment")
+        for task in set(tasks):
+            self.config.check_task(task)
+        target = torch.tensor([t.target for t in tasks], dtype=torch.long, device=self.device)
+        season = torch.zeros(n, self.config.n_colors, dtype=torch.bool, device=self.device)
+        for i, task in enumerate(tasks):
+            season[i, [colour - 3 for colour in task.season]] = True
+        return target, season
+
+    def set_tasks(self, tasks: Task | Sequence[Task]) -> None:
+        """Change the task of the running episodes (a drift); boxes keep their colours."""
+        self._arena.target, self._arena.season = self.task_tensors(tasks)
+
+    def sample_state(self, tasks: Task | Sequence[Task], generator: torch.Generator | int | None = None,
+                     n: int | None = None) -> ForagingState:
+        """Draw ``n`` (default: the batch size) initial states by the spec's reset rules."""
+        generator = _as_generator(generator)
+        n = self.batch_size if n is None else n
+        target, season = self.task_tensors(tasks, n)
+        c = self.config
+        box_pos = self._sample_box_cells(generator, n)
+        n_target = int(c.n_boxes * c.rate_target)
+        others = season.cpu().clone()
+        others[torch.arange(n), target.cpu() - 3] = False
+        colours = torch.empty(n, c.n_boxes, dtype=torch.long)
+        colours[:, :n_target] = target.cpu()[:, None]
+        if n_target < c.n_boxes:
+            drawn = torch.multinomial(others.double(), c.n_boxes - n_target, replacement=True, generator=generator)
+            colours[:, n_target:] = drawn + 3
+        colours = colours.gather(1, torch.rand(n, c.n_boxes, generator=generator).argsort(dim=1))
+        u = torch.rand(n, c.n_agents, 3, generator=generator, dtype=torch.float64) * 2 - 1
+        slots = torch.arange(1, c.n_agents + 1, dtype=torch.float64) * c.size / (c.n_agents + 1)
+        agent_pos = torch.stack((2 + u[..., 0], slots + u[..., 1]), dim=-1)
+        key = torch.randint(0, _HASH_MASK, (n,), generator=generator)
+        dev = self.device
+        return ForagingState(
+            agent_pos=agent_pos.to(dev, self.dtype), heading=(180 + 10 * u[..., 2]).to(dev, self.dtype),
+            carrying=torch.full((n, c.n_agents), -1, dtype=torch.long, device=dev),
+            box_pos=box_pos.to(dev, self.dtype), box_color=colours.to(dev),
+            box_present=torch.ones(n, c.n_boxes, dtype=torch.bool, device=dev),
+            target=target, season=season,
+            steps=torch.zeros(n, dtype=torch.long, device=dev),
+            retrieved=torch.zeros(n, dtype=torch.long, device=dev),
+            done=torch.zeros(n, dtype=torch.bool, device=dev),
+            respawn_key=key.to(dev))
+
+    def _sample_box_cells(self, generator: torch.Generator, n: int) -> torch.Tensor:
+        """Integer cells, each redrawn until ``MIN_BOX_SPACING`` from the boxes before it."""
+        c = self.config
+        high = int(c.size) - 1
+        lows = torch.tensor(BOX_LOW, dtype=torch.float64)
+        spans = torch.tensor([high - BOX_LOW[0], high - BOX_LOW[1]], dtype=torch.float64)
+        cells = torch.empty(n, c.n_boxes, 2, dtype=torch.float64)
+        tries = 16  # candidates drawn at once per environment; the first valid one is the draw
+        for k in range(c.n_boxes):
+            pending = torch.ones(n, dtype=torch.bool)
+            while pending.any():
+                rows = pending.nonzero().squeeze(1)
+                draw = lows + (torch.rand(len(rows), tries, 2, generator=generator, dtype=torch.float64) * spans).floor()
+                if k == 0:
+                    ok = torch.ones(len(rows), tries, dtype=torch.bool)
+                else:
+                    ok = (torch.cdist(draw, cells[rows, :k]) >= MIN_BOX_SPACING).all(dim=-1)
+                found = ok.any(dim=1)
+                chosen = draw[torch.arange(len(rows)), ok.int().argmax(dim=1)]
+                cells[rows[found], k] = chosen[found]
+                pending[rows[found]] = False
+        return cells
+
+    def reset(self, tasks: Task | Sequence[Task] | None = None, generator: torch.Generator | int | None = None,
+              state: ForagingState | None = None) -> torch.Tensor:
+        """Start new episodes: sampled for ``tasks`` from ``generator`` (or a seed), or the
+        explicit ``state`` (validated). Returns the observations ``(B, A, obs_dim)``."""
+        if state is None:
+            if tasks is None:
+                raise ConfigError("reset needs tasks (to sample initial states) or an explicit state")
+            state = self.sample_state(tasks, generator)
+        else:
+            state = self._checked_state(state)
+        self._arena = _Arena.from_state(state)
+        return self._observe_arena()
+
+    def reset_done(self, tasks: Task | Sequence[Task], generator: torch.Generator | int | None = None) -> torch.Tensor:
+        """Replace the ended environments with fresh ones (autoreset); returns all observations.
+
+        ``tasks``: one task, or one per environment of the whole batch (only the ended ones' are used).
+        """
+        done = self._arena.done.nonzero().squeeze(1)
+        if len(done):
+            if not isinstance(tasks, Task):
+                tasks = [tasks[i] for i in done.tolist()]
+            fresh = _Arena.from_state(self.sample_state(tasks, generator, n=len(done)))
+            for name in fields(_Arena):
+                current, new = getattr(self._arena, name.name), getattr(fresh, name.name)
+                axis = 1 if name.name in _BATCH_LAST else 0
+                current.index_copy_(axis, done, new)
+        return self._observe_arena()
+
+    @property
+    def state(self) -> ForagingState:
+        """A copy of the full current state, batch first."""
+        return self._arena.to_state()
+
+    def _checked_state(self, state: ForagingState) -> ForagingState:
+        c, B = self.config, self.batch_size
+        shapes = {"agent_pos": (B, c.n_agents, 2), "heading": (B, c.n_agents), "carrying": (B, c.n_agents),
+                  "box_pos": (B, c.n_boxes, 2), "box_color": (B, c.n_boxes), "box_present": (B, c.n_boxes),
+                  "target": (B,), "season": (B, c.n_colors), "steps": (B,), "retrieved": (B,),
+                  "done": (B,), "respawn_key": (B,)}
+        for name, shape in shapes.items():
+            got = tuple(getattr(state, name).shape)
+            if got != shape:
+                raise ConfigError(f"state.{name} has shape {got}, expected {shape} for this config and batch")
+        state = state.to(self.device)
+        state = replace(state, agent_pos=state.agent_pos.to(self.dtype), heading=state.heading.to(self.dtype),
+                        box_pos=state.box_pos.to(self.dtype))
+        if not torch.equal(state.box_pos, state.box_pos.round()):
+            raise ConfigError("state.box_pos must hold integer cells: the spec places and respawns boxes on cells")
+        for name in ("box_color", "target"):
+            ids = getattr(state, name)
+            if ((ids < 3) | (ids > 2 + c.n_colors)).any():
+                raise ConfigError(f"state.{name} holds colour ids outside this arena's colors {list(c.colors)}")
+        carried = state.carrying[state.carrying >= 0]
+        if (carried >= c.n_boxes).any():
+            raise ConfigError(f"state.carrying holds box indices >= n_boxes={c.n_boxes}")
+        return state
+
+    # ------------------------------------------------------------------ step
+    def step(self, wheels: torch.Tensor):
+        """Advance every environment one step with wheel speeds ``(B, A, 3)``.
+
+        Returns ``(observations (B, A, obs_dim), rewards (B,), done (B,), info)``; ``info`` holds,
+        per environment and agent, ``picked`` / ``dropped`` box indices (-1 for none),
+        ``drop_correct`` and ``respawn_cell`` (the cell a dropped box went to, -1 otherwise).
+        """
+        c, a = self.config, self._arena
+        active = ~a.done
+        # 1. kinematics, in the arena frame; an ended environment stays frozen
+        velocity = (wheels.to(self.dtype) @ self._kinematics_t).permute(2, 1, 0)     # (3, A, B)
+        moving = active.to(self.dtype) * c.time_step
+        ax = (a.ax + velocity[0] * moving).clamp(0.0, c.size)
+        ay = (a.ay + velocity[1] * moving).clamp(0.0, c.size)
+        turn = torch.rad2deg(velocity[2] * (moving / WHEEL_RADIUS_FACTOR))
+        heading = torch.remainder(a.heading + turn, 360.0)
+        # 2. distances from the new positions
+        dx, dy, dist = self._box_offsets(ax, ay, a.bx, a.by)                              # (K, A, B)
+        keys = self._box_keys.keys(dist, ~a.present[:, None])
+        # 3. picks (agents in index order), then drops
+        picked = self._resolve_picks(keys, dist, a, active)
+        picking = picked >= 0
+        present = a.present
+        if picking.any():
+            present = present & ~self._box_flags(picked)
+            keys = self._box_keys.keys(dist, ~present[:, None])
+        carrying = torch.where(picking, picked, a.carrying)
+        is_target = a.color.gather(0, carrying.clamp(min=0)) == a.target
+        dropping = (carrying >= 0) & (ax < 1) & active
+        drop_correct = dropping & is_target
+        reward = (torch.where(is_target, 1, -1) * picking + 2 * drop_correct).sum(dim=0)
+        dropped = torch.where(dropping, carrying, -1)
+        carrying = torch.where(dropping, -1, carrying)
+        # 4. sensing; a box dropped this step stays absent until the next one
+        observations = self._observe(ax, ay, heading, carrying, dx, dy, dist, keys, present, a.color, a.target)
+        respawn = respawn_cells(a.respawn_key, a.steps, c.n_agents, int(c.size))            # (A, B, 2)
+        bx, by = a.bx, a.by
+        if c.repositioning and dropping.any():
+            bx, by, present = self._respawn(dropped, respawn, bx, by, present)
+        # 5. termination
+        retrieved = a.retrieved + drop_correct.sum(dim=0)
+        steps = a.steps + active.long()
+        done = a.done | (retrieved >= c.max_retrieves) | (steps >= c.duration)
+        self._arena = replace(a, ax=ax, ay=ay, heading=heading, carrying=carrying, bx=bx, by=by,
+                              present=present, steps=steps, retrieved=retrieved, done=done)
+        info = {"picked": picked.T, "dropped": dropped.T, "drop_correct": drop_correct.T,
+                "respawn_cell": torch.where(dropping[..., None], respawn, -1).transpose(0, 1)}
+        return observations, reward.to(self.dtype), done, info
+
+    @staticmethod
+    def _box_offsets(ax, ay, bx, by):
+        """Agent-minus-box offsets and distances, each ``(K, A, B)``."""
+        dx, dy = ax[None] - bx[:, None], ay[None] - by[:, None]
+        return dx, dy, torch.sqrt(dx * dx + dy * dy)
+
+    def _resolve_picks(self, keys, dist, a: _Arena, active) -> torch.Tensor:
+        """Box index each agent picks this step, -1 for none: ``(A, B)``.
+
+        Sequential semantics (agents in index order, each taking its nearest present box,
+        lowest index on a tie, if strictly within ``sensitivity``) without a loop: boxes sit on
+        integer cells, so an agent is within 0.5 of at most one cell; agents at the same cell
+        take the boxes stacked there in index order, one each, by rank.
+        """
+        c = self.config
+        nearest_key = keys.amin(dim=0)                                                     # (A, B)
+        nearest = self._box_keys.index(nearest_key)
+        near_dist = dist.gather(0, nearest[None])[0]
+        wants = (a.carrying < 0) & ~self._box_keys.is_absent(nearest_key) & (near_dist < c.sensitivity) & active
+        picks = torch.full_like(a.carrying, -1)
+        if not wants.any():
+            return picks
+        cols = wants.any(0).nonzero().squeeze(1)         # only environments where someone picks
+        wants, nearest = wants[:, cols], nearest[:, cols]
+        bx, by, present = a.bx[:, cols], a.by[:, cols], a.present[:, cols]
+        cx, cy = bx.gather(0, nearest), by.gather(0, nearest)                              # (A, b)
+        same_cell = (cx[:, None] == cx[None]) & (cy[:, None] == cy[None]) & wants[None]     # (A, A, b)
+        earlier = torch.ones(c.n_agents, c.n_agents, dtype=torch.bool, device=self.device).tril(-1)
+        rank = (same_cell & earlier[..., None]).sum(1)                                     # (A, b)
+        stacked = (bx[None] == cx[:, None]) & (by[None] == cy[:, None]) & present[None]     # (A, K, b)
+        chosen = stacked & (stacked.long().cumsum(1) - 1 == rank[:, None])
+        got = chosen.any(1) & wants
+        picks[:, cols] = torch.where(got, chosen.int().argmax(1), -1)
+        return picks
+
+    def _box_flags(self, box_index: torch.Tensor) -> torch.Tensor:
+        """(A, B) box indices (-1 for none) -> (K, B) bool: the box is named by some agent."""
+        counts = torch.zeros(self.config.n_boxes + 1, box_index.shape[1], dtype=torch.long, device=self.device)
+        counts.scatter_add_(0, box_index + 1, torch.ones_like(box_index))
+        return counts[1:] > 0
+
+    def _respawn(self, dropped, respawn, bx, by, present):
+        """Put each dropped box on its respawn cell (row K collects the agents that dropped nothing)."""
+        K, B = bx.shape
+        slot = torch.where(dropped >= 0, dropped, K)
+        spare = torch.zeros(1, B, dtype=self.dtype, device=self.device)
+        bx = torch.cat((bx, spare)).scatter_(0, slot, respawn[..., 0].to(self.dtype))[:K]
+        by = torch.cat((by, spare)).scatter_(0, slot, respawn[..., 1].to(self.dtype))[:K]
+        return bx, by, present | self._box_flags(dropped)
+
+    # ------------------------------------------------------------------ sensing
+    def _observe_arena(self) -> torch.Tensor:
+        a = self._arena
+        dx, dy, dist = self._box_offsets(a.ax, a.ay, a.bx, a.by)
+        keys = self._box_keys.keys(dist, ~a.present[:, None])
+        return self._observe(a.ax, a.ay, a.heading, a.carrying, dx, dy, dist, keys, a.present, a.color, a.target)
+
+    def _observe(self, ax, ay, heading, carrying, dx, dy, dist, keys, present, color, target) -> torch.Tensor:
+        """Observation vectors ``(B, A, obs_dim)`` in the spec's order.
+
+        ``dx, dy, dist, keys``: ``(K, A, B)`` agent-minus-box offsets, distances and order keys.
+        """
+        c = self.config
+        n, rng = c.n_neighbors, c.sensor_range
+        A, B = ax.shape
+        kinds = color[:, None].expand(-1, A, -1)                                          # (K, A, B)
+        if c.see_other_agents:  # other agents come before boxes in the candidate order
+            adx, ady, adist = self._box_offsets(ax, ay, ax, ay)                            # (A other, A, B)
+            is_self = torch.eye(A, dtype=torch.bool, device=self.device)[..., None]
+            dx, dy, dist = torch.cat((adx, dx)), torch.cat((ady, dy)), torch.cat((adist, dist))
+            keys = self._box_keys.keys(dist, torch.cat((is_self.expand(A, A, 1), ~present[:, None].expand(-1, A, -1))))
+            kinds = torch.cat((torch.full((A, A, B), AGENT, device=self.device, dtype=torch.long), kinds))
+        # the nearest n sensed entities other than walls
+        best = [keys.amin(dim=0)]
+        for _ in range(n - 1):
+            best.append(self._box_keys.next_min(keys, best[-1]))
+        best = torch.stack(best)                                                           # (n, A, B)
+        idx = self._box_keys.index(best).clamp(max=dist.shape[0] - 1)
+        o_dist = dist.gather(0, idx)
+        o_seen = ~self._box_keys.is_absent(best) & (o_dist <= rng)
+        # merged with the walls (strictly in range): stable, so walls win equal distances
+        wall = torch.stack((ax, c.size - ax - 1, ay, c.size - ay - 1))                      # (4, A, B)
+        unseen = torch.tensor(_UNSEEN, dtype=self.dtype, device=self.device)
+        cand_dist = torch.cat((torch.where(wall < rng, wall, unseen), torch.where(o_seen, o_dist, unseen)))
+        # + 2 keeps the (possibly negative, >= -1) wall distances positive for the bit keys
+        cand_keys = _float_order_keys(cand_dist.double() + 2.0, 3)
+        slots = []
+        for _ in range(n):
+            slots.append(cand_keys.amin(dim=0))
+            cand_keys = cand_keys.masked_fill(cand_keys == slots[-1], _TAKEN)
+        pick = (torch.stack(slots).view(torch.int64) & 7)                                  # (n, A, B) in 0..3+n
+        s_dist = cand_dist.gather(0, pick)
+        seen = s_dist < _UNSEEN
+        is_wall = pick < 4
+        o_idx = idx.gather(0, (pick - 4).clamp(min=0))
+        g_dx, g_dy, g_dist = dx.gather(0, o_idx), dy.gather(0, o_idx), dist.gather(0, o_idx)
+        # sin and cos of atan2(dy, dx) are dy/d and dx/d; an entity on the agent reads angle 0
+        on_top = g_dist == 0
+        safe = torch.where(on_top, 1.0, g_dist)
+        zero = torch.zeros((), dtype=self.dtype, device=self.device)
+        wall_pick = pick.clamp(max=3)
+        s_sin = torch.where(is_wall, self._wall_sin[wall_pick], torch.where(on_top, zero, g_dy / safe))
+        s_cos = torch.where(is_wall, self._wall_cos[wall_pick], torch.where(on_top, 1.0, g_dx / safe))
+        s_kind = torch.where(seen, torch.where(is_wall, WALL, kinds.gather(0, o_idx)), 0)
+        heading_rad = torch.deg2rad(heading)
+        carried = torch.where(carrying >= 0, color.gather(0, carrying.clamp(min=0)) - 2, 0)  # (A, B)
+        parts = torch.cat((
+            (s_kind[:, None] == self._types).to(self.dtype).reshape(n * c.n_types, A, B),
+            torch.where(seen, s_dist, zero) / rng,
+            torch.where(seen, s_sin, zero),
+            torch.where(seen, s_cos, zero),
+            torch.sin(heading_rad)[None], torch.cos(heading_rad)[None],
+            (carried[None] == self._carry_ids).to(self.dtype),
+            (target == self._colour_ids)[:, None].to(self.dtype).expand(-1, A, -1),
+        ))                                                                                 # (obs_dim, A, B)
+        return parts.permute(2, 1, 0).contiguous()
+
+
+_UNSEEN = 1e30   # distance of an empty candidate: finite, so that its bit key stays a number
+_TAKEN = 1e300   # key of a candidate already chosen
+_BATCH_LAST = {"ax", "ay", "heading", "carrying", "bx", "by", "color", "present"}
+
+
+def _as_generator(generator: torch.Generator | int | None) -> torch.Generator:
+    if isinstance(generator, torch.Generator):
+        return generator
+    fresh = torch.Generator()
+    if generator is None:
+        fresh.seed()
+    else:
+        fresh.manual_seed(int(generator))
+    return fresh
