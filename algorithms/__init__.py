@@ -27,5 +27,18 @@ def make_optimizer(name: str, *, obs_dim: int, population_size: int, seed: int,
                regularization=regularization, device=device, **options)
 
 
-__all__ = ["REGISTRY", "BatchedPolicy", "GenerationReport", "Optimizer", "make_optimizer",
+def policy_from_export(exported: dict, device: str = "cpu") -> BatchedPolicy:
+    """A one-controller policy from what ``Optimizer.export`` wrote (NEAT genome or MLP)."""
+    if exported.get("format") == "neat-python-genome":
+        from .neat_optimizer import policy_from_export as neat_policy
+
+        return neat_policy(exported, device)
+    if "layer_sizes" in exported:
+        from .mlp import MLPPolicy
+
+        return MLPPolicy.from_export(exported, device)
+    raise ValueError("not an exported controller: expected a NEAT genome or an MLP (layer_sizes, parameters)")
+
+
+__all__ = ["policy_from_export", "REGISTRY", "BatchedPolicy", "GenerationReport", "Optimizer", "make_optimizer",
            "UnknownAlgorithmError"]

@@ -326,6 +326,14 @@ class ForagingEnv:
                 current.index_copy_(axis, done, new)
         return self._observe_arena()
 
+    def observe(self) -> torch.Tensor:
+        """The observations of the current state (what the last reset or step returned)."""
+        return self._observe_arena()
+
+    def compile(self) -> None:
+        """Compile the sensing, the bulk of a step, with ``torch.compile`` (static shapes)."""
+        self._observe = torch.compile(self._observe, dynamic=False)
+
     @property
     def state(self) -> ForagingState:
         """A copy of the full current state, batch first."""

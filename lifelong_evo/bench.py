@@ -1,0 +1,111 @@
+"""Benchmark: seconds per paper generation. ``python -m lifelong_evo.bench --help``.
+
+Without ``--algo``: the environment alone, with a random batched MLP controller (41-16-3),
+at several batch sizes, with the split between sensing, controller and dynamics.
+With ``--algo NAME``: one full generation of that optimiser (ask, evaluate, regularise, tell).
+The last line is always ``s_per_generation=<seconds>`` for the chosen workload.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import torch
+
+from envs import TASKS, ForagingConfig, ForagingEnv, outputs_to_wheels
+
+
+def _timed(fn):
+    start = time.perf_counter()
+    result = fn()
+    return result, time.perf_counter() - start
+
+
+def bench_env(n_envs: int, steps: int, config: ForagingConfig, device: str, compile_env: bool) -> dict:
+    """Time ``steps`` steps of ``n_envs`` environments driven by one random MLP per 10 envs."""
+    from algorithms.mlp import MLPPolicy, layer_sizes_for, n_parameters
+
+    generator = torch.Generator().manual_seed(0)
+    population = max(1, n_envs // 10)
+    sizes = layer_sizes_for(config.obs_dim)
+    policy = MLPPolicy(torch.randn(population, n_parameters(sizes), generator=generator).to(device), sizes)
+    env = ForagingEnv(config, batch_size=population * 10, device=device)
+    if compile_env:
+        env.compile()
+    observations = env.reset(TASKS["red"], generator=generator)
+    shape = (population, 10, config.n_agents, config.obs_dim)
+    controller = dynamics = 0.0
+    for _ in range(steps):
+        outputs, spent = _timed(lambda: policy(observations.view(shape)))
+        controller += spent
+        (observations, *_), spent = _timed(lambda: env.step(outputs_to_wheels(outputs, config).view(-1, config.n_agents, 3)))
+        dynamics += spent
+    sensing_once = min(_timed(env.observe)[1] for _ in range(5))
+    sensing = sensing_once * steps
+    total = controller + dynamics
+    return {"envs": population * 10, "s_per_generation": total * config.duration / steps,
+            "agent_steps_per_s": population * 10 * config.n_agents * steps / total,
+            "controller": controller / total, "sensing": min(sensing, dynamics) / total,
+            "dynamics": max(dynamics - sensing, 0.0) / total}
+
+
+def bench_algo(algo: str, population: int, n_envs: int, generations: int, device: str) -> dict:
+    """Time full generations of ``algo`` at the paper's size (after one warm-up generation)."""
+    from algorithms import make_optimizer
+    from lifelong_evo.evaluate import evaluate
+
+    config = ForagingConfig()
+    optimizer = make_optimizer(algo, obs_dim=config.obs_dim, population_size=population, seed=0, device=device)
+    generator = torch.Generator().manual_seed(0)
+    totals = {"ask": 0.0, "evaluate": 0.0, "tell": 0.0}
+    for generation in range(generations + 1):
+        policy, t_ask = _timed(optimizer.ask)
+        fitness, t_eval = _timed(lambda: evaluate(policy, config, [TASKS["red"]], n_envs, generator, device)[0])
+        _, t_tell = _timed(lambda: optimizer.tell(fitness, optimizer.regularise(fitness)))
+        if generation:  # the first generation warms up
+            totals["ask"] += t_ask
+            totals["evaluate"] += t_eval
+            totals["tell"] += t_tell
+    per = {k: v / generations for k, v in totals.items()}
+    per["controllers"] = policy.population_size
+    per["s_per_generation"] = sum(v for k, v in per.items() if k != "controllers")
+    return per
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m lifelong_evo.bench", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--algo", default=None, help="time a full generation of this optimiser (default: env only)")
+    parser.add_argument("--envs", type=int, default=3000, help="environments of the reported workload (env only)")
+    parser.add_argument("--also", default="300,12000", help="other batch sizes to print (env only; '' for none)")
+    parser.add_argument("--steps", type=int, default=100, help="steps timed per batch size, scaled to 500 (env only)")
+    parser.add_argument("--population", type=int, default=300, help="population size (--algo)")
+    parser.add_argument("--evals", type=int, default=10, help="environments per controller (--algo)")
+    parser.add_argument("--generations", type=int, default=2, help="generations timed after a warm-up (--algo)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    parser.add_argument("--compile", action="store_true", help="torch.compile the sensing (env only)")
+    parser.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    print(f"threads={torch.get_num_threads()} device={args.device} compile={'on' if args.compile else 'off'}")
+    if args.algo:
+        result = bench_algo(args.algo, args.population, args.evals, args.generations, args.device)
+        print(f"algo={args.algo} controllers={result['controllers']} x {args.evals} envs x 500 steps: "
+              f"ask {result['ask']:.3f} s, evaluate {result['evaluate']:.3f} s, "
+              f"regularise+tell {result['tell']:.3f} s")
+        print(f"s_per_generation={result['s_per_generation']:.3f}")
+        return
+    config = ForagingConfig()
+    sizes = [int(s) for s in args.also.split(",") if s] + [args.envs]
+    result = {}
+    for n_envs in sizes:
+        result = bench_env(n_envs, args.steps, config, args.device, args.compile)
+        print(f"envs={result['envs']:>6} x 500 steps: {result['s_per_generation']:.3f} s/generation, "
+              f"{result['agent_steps_per_s'] / 1e6:.2f} M agent-steps/s; split: "
+              f"sensing {result['sensing']:.0%}, controller {result['controller']:.0%}, "
+              f"dynamics {result['dynamics']:.0%}")
+    print(f"s_per_generation={result['s_per_generation']:.3f}")
+
+
+if __name__ == "__main__":
+    main()

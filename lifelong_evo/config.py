@@ -1,0 +1,124 @@
+"""The resolved configuration of a lifelong run: defaults, presets, TOML files and validation."""
+from __future__ import annotations
+
+import tomllib
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+from envs import ConfigError, ForagingConfig
+
+from .schedule import ScheduleError, arena_colors, parse_schedule
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything that determines a lifelong run (the paper's main experiment by default)."""
+
+    algo: str = "neat"
+    """Optimiser from the registry: neat, cmaes, sep-cmaes, openai-es, pgpe, snes."""
+    reg: float = 0.0
+    """Regularisation strength lambda (0 = off): genetic distance for NEAT, L2/EWC for the ES."""
+    schedule: str = "red-green-red"
+    """red-green-red, four-tasks, or a list like red:200,green:100,red:50."""
+    generations: int = 200
+    """Generations per task where the schedule gives no count."""
+    population: int = 300
+    """Population size (for an ES: sampled solutions; the centre is scored too)."""
+    evals: int = 10
+    """Environments per controller and task each generation (N)."""
+    seed: int = 42
+    """Seed of everything: environments, the optimiser, respawns."""
+    retention_every: int = 10
+    """Score every controller on earlier tasks every this many generations (and at task ends)."""
+    checkpoint_every: int = 10
+    """Write a checkpoint every this many generations (and at every task end)."""
+    device: str = "cpu"
+    """Torch device for environments and controllers."""
+    threads: int = 1
+    """Torch CPU threads (one is often faster for these small tensors, and keeps runs reproducible)."""
+    record: bool = True
+    """Write recording.rrd (Rerun)."""
+    episodes_every: int = 0
+    """Also record top-individual episodes every this many generations (0: only at task ends)."""
+    env: dict = field(default_factory=dict)
+    """Environment overrides (ForagingConfig fields); the arena colours follow the schedule."""
+    algo_options: dict = field(default_factory=dict)
+    """Optimiser options, e.g. sigma, learning_rate, hidden, importance, references."""
+
+    def phases(self):
+        return parse_schedule(self.schedule, self.generations)
+
+    def env_config(self) -> ForagingConfig:
+        phases = self.phases()
+        values = {"colors": arena_colors(phases), **self.env}
+        return ForagingConfig.from_dict(values)
+
+    def validate(self) -> "RunConfig":
+        from algorithms import REGISTRY
+
+        if self.algo not in REGISTRY:
+            raise ConfigError(f"unknown algorithm {self.algo!r}: choose one of {', '.join(REGISTRY)}")
+        if self.reg < 0:
+            raise ConfigError(f"--reg must be >= 0, got {self.reg}")
+        if self.reg and not REGISTRY[self.algo].has_regularizer:
+            raise ConfigError(f"algorithm {self.algo!r} has no regulariser: drop --reg")
+        for name in ("generations", "population", "evals", "retention_every", "checkpoint_every", "threads"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        if self.episodes_every < 0:
+            raise ConfigError(f"--episodes-every must be >= 0, got {self.episodes_every}")
+        try:
+            phases = self.phases()
+        except ScheduleError as error:
+            raise ConfigError(str(error)) from None
+        env = self.env_config()
+        for phase in phases:
+            env.check_task(phase.task)
+        return self
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any], source: str = "config") -> "RunConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ConfigError(f"unknown option(s) {unknown} in {source}: valid ones are {sorted(known)}")
+        return cls(**values)
+
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {},
+    "smoke": {"generations": 3, "population": 12, "evals": 2, "retention_every": 2, "checkpoint_every": 2,
+              "env": {"duration": 60}},
+}
+"""``paper``: the paper's protocol. ``smoke``: a run of seconds, for tests and a first look."""
+
+
+def load_toml(path: str | Path) -> dict[str, Any]:
+    """Read a run configuration file (the keys of RunConfig; [env] and [algo_options] tables)."""
+    try:
+        with open(path, "rb") as handle:
+            return tomllib.load(handle)
+    except FileNotFoundError:
+        raise ConfigError(f"config file {path} does not exist") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"config file {path} is not valid TOML: {error}") from None
+
+
+def resolve(preset: str = "paper", file_values: dict | None = None, overrides: dict | None = None) -> RunConfig:
+    """Defaults < preset < TOML file < command-line flags; nested tables merge key by key."""
+    if preset not in PRESETS:
+        raise ConfigError(f"unknown preset {preset!r}: choose one of {', '.join(PRESETS)}")
+    merged: dict[str, Any] = {}
+    for layer, source in ((PRESETS[preset], f"preset {preset}"), (file_values or {}, "the config file"),
+                          (overrides or {}, "the command line")):
+        RunConfig.from_dict(layer, source)  # reject unknown keys early, naming where they came from
+        for key, value in layer.items():
+            if key in ("env", "algo_options"):
+                merged[key] = {**merged.get(key, {}), **value}
+            else:
+                merged[key] = value
+    return replace(RunConfig(), **merged).validate()

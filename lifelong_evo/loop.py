@@ -1,0 +1,190 @@
+"""The lifelong loop: for each task of the schedule, for each generation:
+ask, evaluate on the current task (and on earlier tasks every few generations, in the same
+batched call), regularise, tell, record; checkpoints at intervals and at every task end."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+
+from algorithms import make_optimizer, policy_from_export
+from envs import Task
+
+from . import checkpoint
+from .config import RunConfig
+from .episodes import play_episodes
+from .evaluate import evaluate
+from .metrics import fitness_stats, retention, summarise
+from .progress import Progress
+from .recording import NullRecorder, Recorder
+from .rundir import MetricsWriter, RunDir, library_versions, metric_columns, read_json, write_json
+from .schedule import distinct_tasks
+
+
+class ResumeError(RuntimeError):
+    pass
+
+
+@dataclass
+class LoopState:
+    """What the loop carries from one generation to the next (all of it is checkpointed)."""
+
+    generation: int = 0
+    """Generations completed so far (global)."""
+    phase_ends: list[dict[str, Any]] = field(default_factory=list)
+    """Per finished phase: its task, C and the retention on every task of the schedule."""
+    initial: dict[str, dict[str, float]] = field(default_factory=dict)
+    """The fresh population's scores on every task (the forward-transfer baseline)."""
+    wall_time_s: float = 0.0
+
+
+def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: bool = False,
+        recorder: Recorder | None = None, progress: bool | None = None) -> dict[str, Any]:
+    """Run (or continue) the lifelong experiment ``config`` into ``run_dir``; returns the summary."""
+    torch.set_num_threads(config.threads)
+    phases = config.phases()
+    phase_names = [p.name for p in phases]
+    tasks = distinct_tasks(phases)
+    env_config = config.env_config()
+    optimizer = make_optimizer(config.algo, obs_dim=env_config.obs_dim, population_size=config.population,
+                               seed=config.seed, regularization=config.reg, device=config.device,
+                               **config.algo_options)
+    generator = torch.Generator().manual_seed(config.seed)
+    state = LoopState()
+    if resume:
+        state = _resume(config, run_dir, optimizer, generator)
+    else:
+        run_dir.create(overwrite)
+        write_json(run_dir.config, {**config.to_dict(), "env_resolved": env_config.to_dict(),
+                                    "versions": library_versions()})
+    has_centre = optimizer.centre_index is not None
+    columns = metric_columns([t.name for t in tasks], has_species=config.algo == "neat", has_centre=has_centre)
+    writer = MetricsWriter(run_dir.metrics, columns, keep_generations=state.generation if resume else None)
+    recorder = recorder or NullRecorder()
+    total = sum(p.generations for p in phases)
+    display = Progress(total, state.generation, enabled=progress)
+    started = time.monotonic() - state.wall_time_s
+    generation = 0
+    try:
+        for phase_index, phase in enumerate(phases):
+            earlier = [t for t in tasks if t.name in phase_names[:phase_index] and t.name != phase.name]
+            for in_task in range(phase.generations):
+                if generation < state.generation:  # done before the checkpoint we resumed from
+                    generation += 1
+                    continue
+                if in_task == 0 and phase_index > 0:
+                    recorder.log_drift(generation, phase_names[phase_index - 1], phase.name)
+                last = in_task == phase.generations - 1
+                if generation == 0 or last:
+                    others = [t for t in tasks if t.name != phase.name]  # every task: R matrix, FWT baseline
+                elif generation % config.retention_every == 0:
+                    others = earlier
+                else:
+                    others = []
+                policy = optimizer.ask()
+                fitness = evaluate(policy, env_config, [phase.task, *others], config.evals, generator, config.device)
+                raw = fitness[0]
+                regularised = optimizer.regularise(raw)
+                scores = {task.name: retention(fitness[1 + i], raw, optimizer.centre_index)
+                          for i, task in enumerate(others)}
+                scores[phase.name] = retention(raw, raw, optimizer.centre_index)
+                top = int(raw.argmax())
+                exported = optimizer.export(top) if last else None
+                report = optimizer.tell(raw, regularised)
+                row = {"task": phase.name, "task_index": phase_index, "generation": generation,
+                       "generation_in_task": in_task, **fitness_stats(raw), **fitness_stats(regularised, "reg_")}
+                if report.species_sizes is not None:
+                    row["species"] = len(report.species_sizes)
+                if has_centre:
+                    row["centre"] = raw[optimizer.centre_index].item()
+                for task in earlier:
+                    if task.name in scores:
+                        row[f"retention_pop_{task.name}"] = scores[task.name]["pop"]
+                        row[f"retention_top_{task.name}"] = scores[task.name]["top"]
+                        if has_centre:
+                            row[f"retention_centre_{task.name}"] = scores[task.name]["centre"]
+                writer.write(row)
+                recorder.log_generation(row, report)
+                if generation == 0:
+                    state.initial = {level: {name: s[level] for name, s in scores.items()} for level in ("pop", "top")}
+                if last:
+                    _finish_phase(config, run_dir, optimizer, state, phase_index, phase.name, scores, exported,
+                                  [t for t in tasks if t.name in phase_names[:phase_index + 1]], recorder,
+                                  generation, env_config)
+                generation += 1
+                state.generation = generation
+                state.wall_time_s = time.monotonic() - started
+                best_kept = {name: s["pop"] for name, s in scores.items() if name != phase.name}
+                display.update(generation - 1, phase.name, phase_index + 1, len(phases), raw.max().item(), best_kept)
+                if last or generation % config.checkpoint_every == 0:
+                    _save_checkpoint(config, run_dir, optimizer, generator, state)
+                    write_json(run_dir.summary, summarise(phase_names, state.phase_ends, state.initial,
+                                                          state.wall_time_s, has_centre))
+    finally:
+        writer.close()
+        recorder.close()
+        display.close()
+    summary = summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s, has_centre)
+    write_json(run_dir.summary, summary)
+    return summary
+
+
+def _finish_phase(config, run_dir, optimizer, state, phase_index, name, scores, exported, seen_tasks,
+                  recorder, generation, env_config) -> None:
+    """Task end: record C and the retention on every task, export the top controller, record its
+    episodes on the tasks seen so far, and let the optimiser take its regularisation reference."""
+    end = {"task": name, "C": scores[name]["pop"],
+           "R_pop": {n: s["pop"] for n, s in scores.items()}, "R_top": {n: s["top"] for n, s in scores.items()}}
+    if optimizer.centre_index is not None:
+        end["R_centre"] = {n: s["centre"] for n, s in scores.items()}
+    state.phase_ends.append(end)
+    write_json(run_dir.controllers / f"task{phase_index}-{name}-top.json", exported)
+    write_json(run_dir.controllers / "final-top.json", exported)
+    if recorder.wants_episodes:
+        policy = policy_from_export(exported, config.device)
+        for task in seen_tasks:
+            seed = config.seed * 1_000_003 + generation  # its own stream: recording never shifts the run's
+            episode = play_episodes(policy, env_config, task, [seed], config.device)[0]
+            recorder.log_episode(generation, phase_index, name, task, episode)
+    optimizer.end_task()
+
+
+def _checkpoint_payload(config, optimizer, generator, state) -> dict[str, Any]:
+    return {"config": config.to_dict(), "optimizer": optimizer.state_dict(), "generator": generator.get_state(),
+            "loop": {"generation": state.generation, "phase_ends": state.phase_ends, "initial": state.initial,
+                     "wall_time_s": state.wall_time_s}}
+
+
+def _save_checkpoint(config, run_dir, optimizer, generator, state) -> None:
+    checkpoint.save(run_dir.checkpoint_path(state.generation), _checkpoint_payload(config, optimizer, generator, state))
+    for old in sorted(run_dir.checkpoints.glob("generation-*.pt"))[:-2]:  # keep the last two
+        old.unlink()
+
+
+def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopState:
+    stored = read_json(run_dir.config)
+    mine = config.to_dict()
+    different = sorted(k for k in mine if stored.get(k) != mine[k])
+    if different:
+        raise ResumeError(f"{run_dir.path} was run with other settings ({', '.join(different)} differ): "
+                          "resume without changing them, or start a new run with --name")
+    path = run_dir.latest_checkpoint()
+    if path is None:
+        return LoopState()
+    payload = checkpoint.load(path)
+    if payload.get("config") != mine:
+        raise ResumeError(f"checkpoint {path} belongs to another configuration: delete it or start a new run")
+    optimizer.load_state_dict(payload["optimizer"])
+    generator.set_state(payload["generator"])
+    loop = payload["loop"]
+    return LoopState(generation=loop["generation"], phase_ends=loop["phase_ends"], initial=loop["initial"],
+                     wall_time_s=loop["wall_time_s"])
+
+
+def stored_config(run_dir: RunDir) -> RunConfig:
+    """The configuration a run directory was created with."""
+    values = read_json(run_dir.config)
+    return RunConfig.from_dict({k: v for k, v in values.items() if k not in ("env_resolved", "versions")},
+                               str(run_dir.config))

@@ -1,0 +1,80 @@
+"""The paper's metrics and the continual-learning ones, from fitness tensors.
+
+Per generation g of phase t with population P_t (fitness f over the controllers):
+  C(P_t)        = max_pi f_t(pi)                        current performance
+  R_pop_u(P_t)  = max_pi f_u(pi)                        population retention of an earlier task u
+  R_top_u(P_t)  = f_u(argmax_pi f_t(pi))                retention of the current top individual
+At the end of phase t, for each task u of an earlier phase (the latest such phase s):
+  F_pop/top_u   = C(P_s at its end) - R_pop/top_u(P_t at its end)      forgetting
+Over the T phases of the schedule, with R[i][j] the fitness on phase j's task at the end of
+phase i (R_pop: best of the population; R_top: the top individual of phase i) and b_j the best
+fitness of the fresh random population (generation 0) on phase j's task:
+  ACC = 1/T sum_j R[T-1][j]                 average final performance
+  BWT = 1/(T-1) sum_{j<T-1} (R[T-1][j] - R[j][j])      backward transfer (Lopez-Paz & Ranzato 2017)
+  FWT = 1/(T-1) sum_{j>=1} (R[j-1][j] - b_j)           forward transfer
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+
+def fitness_stats(values: torch.Tensor, prefix: str = "") -> dict[str, float]:
+    values = values.double()
+    return {f"{prefix}best": values.max().item(), f"{prefix}mean": values.mean().item(),
+            f"{prefix}median": values.median().item(),
+            f"{prefix}std": values.std(unbiased=False).item()}
+
+
+def retention(scores: torch.Tensor, current: torch.Tensor, centre_index: int | None) -> dict[str, float]:
+    """Population, top-individual (and centre) retention from one task's fitness ``scores``."""
+    top = int(current.argmax())
+    values = {"pop": scores.max().item(), "top": scores[top].item()}
+    if centre_index is not None:
+        values["centre"] = scores[centre_index].item()
+    return values
+
+
+def summarise(phase_names: list[str], phase_ends: list[dict[str, Any]], initial: dict[str, dict[str, float]],
+              wall_time_s: float, has_centre: bool) -> dict[str, Any]:
+    """summary.json from the task-end records (see ``LifelongRun``) and the generation-0 scores."""
+    summary: dict[str, Any] = {"phases": phase_names[:len(phase_ends)], "wall_time_s": wall_time_s,
+                               "current": [end["C"] for end in phase_ends], "forgetting": []}
+    if has_centre:
+        summary["centre_current"] = [end["R_centre"][end["task"]] for end in phase_ends]
+    for i, end in enumerate(phase_ends):
+        for earlier in _earlier_tasks(phase_names, i):
+            s = max(j for j in range(i) if phase_names[j] == earlier)
+            c_earlier = phase_ends[s]["C"]
+            row = {"at_end_of": i, "task": earlier, "C": c_earlier,
+                   "R_pop": end["R_pop"][earlier], "R_top": end["R_top"][earlier],
+                   "F_pop": c_earlier - end["R_pop"][earlier], "F_top": c_earlier - end["R_top"][earlier]}
+            if has_centre:
+                row["R_centre"] = end["R_centre"][earlier]
+                row["F_centre"] = phase_ends[s]["R_centre"][earlier] - end["R_centre"][earlier]
+            summary["forgetting"].append(row)
+    if len(phase_ends) == len(phase_names):
+        for level in ("pop", "top"):
+            matrix = [[end[f"R_{level}"][name] for name in phase_names] for end in phase_ends]
+            summary[f"R_{level}"] = matrix
+            summary.update(_transfer(matrix, [initial["pop"][name] for name in phase_names], level))
+    return summary
+
+
+def _earlier_tasks(phase_names: list[str], i: int) -> list[str]:
+    seen: list[str] = []
+    for name in phase_names[:i]:
+        if name != phase_names[i] and name not in seen:
+            seen.append(name)
+    return seen
+
+
+def _transfer(matrix: list[list[float]], baseline: list[float], level: str) -> dict[str, float | None]:
+    T = len(matrix)
+    acc = sum(matrix[T - 1]) / T
+    if T < 2:
+        return {f"ACC_{level}": acc, f"BWT_{level}": None, f"FWT_{level}": None}
+    bwt = sum(matrix[T - 1][j] - matrix[j][j] for j in range(T - 1)) / (T - 1)
+    fwt = sum(matrix[j - 1][j] - baseline[j] for j in range(1, T)) / (T - 1)
+    return {f"ACC_{level}": acc, f"BWT_{level}": bwt, f"FWT_{level}": fwt}

@@ -1,0 +1,31 @@
+"""What the lifelong loop tells a recorder; the Rerun recorder lives in ``rerun_recorder``."""
+from __future__ import annotations
+
+from typing import Any
+
+from algorithms.base import GenerationReport
+from envs import Task
+
+from .episodes import Episode
+
+
+class Recorder:
+    """Receives the run as it happens. The base class records nothing."""
+
+    wants_episodes: bool = False
+    """Whether the loop should play and pass top-individual episodes at task ends."""
+
+    def log_generation(self, row: dict[str, Any], report: GenerationReport) -> None:
+        """One metrics.csv row (and the optimiser's report) per generation."""
+
+    def log_drift(self, generation: int, previous: str, task: str) -> None:
+        """The task changes before ``generation``."""
+
+    def log_episode(self, generation: int, phase_index: int, phase_task: str, task: Task, episode: Episode) -> None:
+        """An episode of phase ``phase_index``'s top individual on ``task``."""
+
+    def close(self) -> None:
+        """Flush and finish."""
+
+
+NullRecorder = Recorder

@@ -1,0 +1,30 @@
+"""Plain-text tables of a run's summary."""
+from __future__ import annotations
+
+from typing import Any
+
+
+def _fmt(value) -> str:
+    return "-" if value is None else f"{value:.2f}"
+
+
+def summary_table(summary: dict[str, Any]) -> str:
+    """The paper's table for one run: current performance per phase, then retention and
+    forgetting of each earlier task at each later task end, then the transfer metrics."""
+    lines = ["phase  task     C (current)"]
+    for i, (name, c) in enumerate(zip(summary["phases"], summary["current"])):
+        lines.append(f"{i:>5}  {name:<7}  {_fmt(c)}")
+    if summary["forgetting"]:
+        lines.append("")
+        lines.append("at end of  task     R_pop   F_pop   R_top   F_top")
+        for row in summary["forgetting"]:
+            lines.append(f"{row['at_end_of']:>9}  {row['task']:<7}  {_fmt(row['R_pop']):>6}  {_fmt(row['F_pop']):>6}  "
+                         f"{_fmt(row['R_top']):>6}  {_fmt(row['F_top']):>6}")
+    if "ACC_pop" in summary:
+        lines.append("")
+        lines.append("         ACC     BWT     FWT")
+        for level in ("pop", "top"):
+            lines.append(f"{level:<5}  {_fmt(summary[f'ACC_{level}']):>6}  {_fmt(summary[f'BWT_{level}']):>6}  "
+                         f"{_fmt(summary[f'FWT_{level}']):>6}")
+    lines.append(f"\nwall time: {summary['wall_time_s'] / 60:.1f} min")
+    return "\n".join(lines)

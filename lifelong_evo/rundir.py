@@ -1,0 +1,142 @@
+"""The run directory, a stable contract other tools read:
+
+``runs/<name>/config.json``   the resolved configuration and library versions
+``runs/<name>/metrics.csv``   one row per generation
+``runs/<name>/summary.json``  the paper's table values and the continual-learning metrics
+``runs/<name>/recording.rrd`` the Rerun recording
+``runs/<name>/checkpoints/``  authenticated checkpoints (see ``lifelong_evo.checkpoint``)
+``runs/<name>/controllers/``  exported controllers (JSON: neat-python genomes or MLP parameters)
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import platform
+import shutil
+from importlib import metadata
+from pathlib import Path
+from typing import Any, Iterable
+
+from .checkpoint import atomic_write_bytes
+
+
+class RunDirError(RuntimeError):
+    pass
+
+
+def library_versions() -> dict[str, str]:
+    versions = {"python": platform.python_version()}
+    for package in ("torch", "neat-python", "evotorch", "numpy", "gymnasium", "rerun-sdk", "lifelong-evo"):
+        try:
+            versions[package] = metadata.version(package)
+        except metadata.PackageNotFoundError:
+            versions[package] = "not installed"
+    return versions
+
+
+def write_json(path: Path, value: Any) -> None:
+    atomic_write_bytes(path, (json.dumps(value, indent=2, default=_jsonable) + "\n").encode())
+
+
+def _jsonable(value):
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+
+
+def read_json(path: Path) -> Any:
+    try:
+        return json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise RunDirError(f"{path} does not exist: is this a run directory?") from None
+    except json.JSONDecodeError as error:
+        raise RunDirError(f"{path} is not valid JSON ({error})") from None
+
+
+class RunDir:
+    """Paths of one run directory, and its creation rules."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.config = self.path / "config.json"
+        self.metrics = self.path / "metrics.csv"
+        self.summary = self.path / "summary.json"
+        self.recording = self.path / "recording.rrd"
+        self.checkpoints = self.path / "checkpoints"
+        self.controllers = self.path / "controllers"
+
+    def create(self, overwrite: bool) -> None:
+        if self.path.exists() and any(self.path.iterdir()):
+            if not overwrite:
+                raise RunDirError(f"run directory {self.path} already exists: pass --resume to continue it, "
+                                  "--overwrite to start it again, or --name for a new one")
+            shutil.rmtree(self.path)
+        self.checkpoints.mkdir(parents=True, exist_ok=True)
+        self.controllers.mkdir(parents=True, exist_ok=True)
+
+    def latest_checkpoint(self) -> Path | None:
+        found = sorted(self.checkpoints.glob("generation-*.pt"))
+        return found[-1] if found else None
+
+    def checkpoint_path(self, generation: int) -> Path:
+        return self.checkpoints / f"generation-{generation:06d}.pt"
+
+
+def format_value(value) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return ""
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)
+
+
+class MetricsWriter:
+    """Appends one CSV row per generation, flushed at once; on resume it first cuts the file
+    back to the rows of the generations the checkpoint covers (a kill may have left more)."""
+
+    def __init__(self, path: Path, columns: list[str], keep_generations: int | None):
+        self.path = path
+        self.columns = columns
+        kept: list[dict[str, str]] = []
+        if keep_generations is not None and path.exists():
+            kept = [row for row in read_metrics(path) if int(row["generation"]) < keep_generations]
+        rows = [",".join(columns)] + [",".join(row.get(c, "") for c in columns) for row in kept]
+        atomic_write_bytes(path, ("\n".join(rows) + "\n").encode())
+        self.handle = open(path, "a", newline="")
+
+    def write(self, row: dict[str, Any]) -> None:
+        unknown = set(row) - set(self.columns)
+        if unknown:
+            raise KeyError(f"metrics row has columns not in the header: {sorted(unknown)}")
+        self.handle.write(",".join(format_value(row.get(c)) for c in self.columns) + "\n")
+        self.handle.flush()
+
+    def close(self) -> None:
+        self.handle.close()
+
+
+def read_metrics(path: Path) -> list[dict[str, str]]:
+    """Rows of a metrics.csv; a half-written last line (a killed run) is dropped."""
+    with open(path, newline="") as handle:
+        text = handle.read()
+    lines = text.split("\n")
+    complete = lines[:-1] if not text.endswith("\n") else lines
+    reader = csv.DictReader([line for line in complete if line])
+    return [row for row in reader if None not in row and all(v is not None for v in row.values())]
+
+
+def metric_columns(task_names: Iterable[str], has_species: bool, has_centre: bool) -> list[str]:
+    """The metrics.csv header of a run: fixed by its schedule and algorithm."""
+    columns = ["task", "task_index", "generation", "generation_in_task"]
+    for prefix in ("", "reg_"):
+        columns += [f"{prefix}best", f"{prefix}mean", f"{prefix}median", f"{prefix}std"]
+    if has_species:
+        columns.append("species")
+    if has_centre:
+        columns.append("centre")
+    for name in task_names:
+        columns += [f"retention_pop_{name}", f"retention_top_{name}"]
+        if has_centre:
+            columns.append(f"retention_centre_{name}")
+    return columns
