@@ -10,7 +10,7 @@ import ast
 import importlib
 import re
 import sys
-from dataclasses import fields
+from dataclasses import fields, replace
 from pathlib import Path
 
 from .config import PRESETS, RunConfig
@@ -121,9 +121,13 @@ def _run(args: argparse.Namespace) -> int:
             raise CliError("--resume needs --name (the run directory under --out) to know which run to continue")
         run_dir = RunDir(Path(args.out) / args.name)
         config = stored_config(run_dir)
-        explicit = resolve_run_config(args) if _explicit_run_flags(args) else None
-        if explicit is not None and explicit != config:
-            raise CliError(f"--resume continues {run_dir.path} with its stored settings: drop the other flags")
+        changed = [f.name for f in fields(RunConfig) if f.name not in ("record", "env", "algo_options")
+                   and getattr(args, f.name, None) is not None and getattr(args, f.name) != getattr(config, f.name)]
+        if changed or args.env or args.option or args.config or args.preset != "paper":
+            raise CliError(f"--resume continues {run_dir.path} with its stored settings: drop "
+                           f"{', '.join('--' + c.replace('_', '-') for c in changed) or 'the other flags'}")
+        if args.record is False:
+            config = replace(config, record=False)
     else:
         config = resolve_run_config(args)
         run_dir = RunDir(Path(args.out) / (args.name or default_name(config)))
@@ -139,11 +143,6 @@ def _run(args: argparse.Namespace) -> int:
     print(f"run directory: {run_dir.path}")
     print(summary_table(summary))
     return 0
-
-
-def _explicit_run_flags(args: argparse.Namespace) -> bool:
-    return any(getattr(args, f.name, None) is not None for f in fields(RunConfig)) or args.env or args.option \
-        or args.config or args.preset != "paper"
 
 
 def build_parser() -> argparse.ArgumentParser:

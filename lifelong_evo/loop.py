@@ -3,6 +3,7 @@ ask, evaluate on the current task (and on earlier tasks every few generations, i
 batched call), regularise, tell, record; checkpoints at intervals and at every task end."""
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -19,7 +20,7 @@ from .evaluate import evaluate
 from .metrics import fitness_stats, retention, summarise
 from .progress import Progress
 from .recording import NullRecorder, Recorder
-from .rundir import MetricsWriter, RunDir, library_versions, metric_columns, read_json, write_json
+from .rundir import SPECIES_COLUMNS, MetricsWriter, RunDir, library_versions, metric_columns, read_json, write_json
 from .schedule import distinct_tasks
 
 
@@ -61,7 +62,9 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
                                     "versions": library_versions()})
     has_centre = optimizer.centre_index is not None
     columns = metric_columns([t.name for t in tasks], has_species=config.algo == "neat", has_centre=has_centre)
-    writer = MetricsWriter(run_dir.metrics, columns, keep_generations=state.generation if resume else None)
+    keep = state.generation if resume else None
+    writer = MetricsWriter(run_dir.metrics, columns, keep_generations=keep)
+    species_log = MetricsWriter(run_dir.species, SPECIES_COLUMNS, keep_generations=keep) if config.algo == "neat" else None
     recorder = recorder or NullRecorder()
     total = sum(p.generations for p in phases)
     display = Progress(total, state.generation, enabled=progress)
@@ -106,6 +109,9 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
                         if has_centre:
                             row[f"retention_centre_{task.name}"] = scores[task.name]["centre"]
                 writer.write(row)
+                if species_log is not None:
+                    for species_id, size in sorted(report.species_sizes.items()):
+                        species_log.write({"generation": generation, "species_id": species_id, "size": size})
                 recorder.log_generation(row, report)
                 if generation == 0:
                     state.initial = {level: {name: s[level] for name, s in scores.items()} for level in ("pop", "top")}
@@ -124,6 +130,8 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
                                                           state.wall_time_s, has_centre))
     finally:
         writer.close()
+        if species_log is not None:
+            species_log.close()
         recorder.close()
         display.close()
     summary = summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s, has_centre)
@@ -165,7 +173,7 @@ def _save_checkpoint(config, run_dir, optimizer, generator, state) -> None:
 
 def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopState:
     stored = read_json(run_dir.config)
-    mine = config.to_dict()
+    mine = _outcome_settings(config.to_dict())
     different = sorted(k for k in mine if stored.get(k) != mine[k])
     if different:
         raise ResumeError(f"{run_dir.path} was run with other settings ({', '.join(different)} differ): "
@@ -174,13 +182,19 @@ def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopSta
     if path is None:
         return LoopState()
     payload = checkpoint.load(path)
-    if payload.get("config") != mine:
+    if _outcome_settings(payload.get("config") or {}) != mine:
         raise ResumeError(f"checkpoint {path} belongs to another configuration: delete it or start a new run")
     optimizer.load_state_dict(payload["optimizer"])
     generator.set_state(payload["generator"])
     loop = payload["loop"]
     return LoopState(generation=loop["generation"], phase_ends=loop["phase_ends"], initial=loop["initial"],
                      wall_time_s=loop["wall_time_s"])
+
+
+def _outcome_settings(values: dict[str, Any]) -> dict[str, Any]:
+    """The settings that change a run's numbers, as JSON sees them (tuples become lists);
+    recording options may change on resume."""
+    return {k: v for k, v in json.loads(json.dumps(values)).items() if k not in ("record", "episodes_every")}
 
 
 def stored_config(run_dir: RunDir) -> RunConfig:

@@ -2,6 +2,7 @@
 
 ``runs/<name>/config.json``   the resolved configuration and library versions
 ``runs/<name>/metrics.csv``   one row per generation
+``runs/<name>/species.csv``   NEAT only: generation, species_id, size (one row per species alive)
 ``runs/<name>/summary.json``  the paper's table values and the continual-learning metrics
 ``runs/<name>/recording.rrd`` the Rerun recording
 ``runs/<name>/checkpoints/``  authenticated checkpoints (see ``lifelong_evo.checkpoint``)
@@ -61,6 +62,7 @@ class RunDir:
         self.path = Path(path)
         self.config = self.path / "config.json"
         self.metrics = self.path / "metrics.csv"
+        self.species = self.path / "species.csv"
         self.summary = self.path / "summary.json"
         self.recording = self.path / "recording.rrd"
         self.checkpoints = self.path / "checkpoints"
@@ -91,8 +93,11 @@ def format_value(value) -> str:
     return str(value)
 
 
+SPECIES_COLUMNS = ["generation", "species_id", "size"]
+
+
 class MetricsWriter:
-    """Appends one CSV row per generation, flushed at once; on resume it first cuts the file
+    """Appends CSV rows per generation, flushed at once; on resume it first cuts the file
     back to the rows of the generations the checkpoint covers (a kill may have left more)."""
 
     def __init__(self, path: Path, columns: list[str], keep_generations: int | None):

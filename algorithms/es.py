@@ -1,0 +1,308 @@
+"""Evolution strategies (EvoTorch 0.6) on fixed-topology MLP controllers, behind ask/tell.
+
+One adapter, ``ESOptimizer``, does what every ES shares: the MLP policy over the samples plus the
+distribution centre (the last controller, ``centre_index``), seeding, the regulariser
+(``algorithms.regularizers``), checkpoints and exports. ``GaussianES`` bridges EvoTorch's
+separable-Gaussian searchers (OpenAI-ES, PGPE, SNES); ``algorithms.cmaes`` bridges CMA-ES.
+Each algorithm is one small module (``cmaes``, ``openai_es``, ``pgpe``, ``snes``) that only says
+which EvoTorch searcher it is and with which settings; the update math is always EvoTorch's.
+
+Ask/tell bridge: EvoTorch's searchers sample *and* evaluate inside ``step()``. Here ``ask()`` draws
+the samples with the searcher's own sampler (from the ``Problem``'s seeded generator), and
+``tell()`` runs the searcher's own update on the fitness it is told:
+Gaussian ESs through ``Distribution.compute_gradients`` + ``searcher._update_distribution`` (the two
+calls of ``GaussianSearchAlgorithm._step_non_distributed``), CMA-ES through its unmodified
+``step()`` with the asked samples handed back and a ``Problem`` whose evaluation writes the told
+fitness. Everything is float32; one seed gives the same numbers on CPU.
+"""
+from __future__ import annotations
+
+import logging
+import warnings
+from collections.abc import Sequence
+from contextlib import contextmanager
+from typing import Any, ClassVar
+
+import torch
+from evotorch import Problem
+from evotorch.optimizers import ClipUp, TorchOptimizer
+
+from .base import GenerationReport, Optimizer
+from .mlp import MLPPolicy, layer_sizes_for, n_parameters
+from .regularizers import Regularizer
+
+STATE_FORMAT = 1
+
+
+@contextmanager
+def _quiet_evotorch():
+    """Silence EvoTorch's INFO chatter (dtype/device/actors) while the objects are built, and
+    the torch warning its CMAES constructor triggers by copying tensors with ``torch.tensor``."""
+    logger = logging.getLogger("evotorch")
+    level = logger.level
+    logger.setLevel(max(level, logging.WARNING))
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="To copy construct from a tensor", category=UserWarning)
+            warnings.filterwarnings("ignore", message="__array_wrap__ must accept", category=DeprecationWarning)
+            yield
+    finally:
+        logger.setLevel(level)
+
+
+class TellProblem(Problem):
+    """An EvoTorch ``Problem`` whose evaluation writes the fitness set in ``told``; it also
+    owns the seeded generator every sample comes from."""
+
+    def __init__(self, solution_length: int, *, seed: int, device: str | torch.device):
+        super().__init__("max", solution_length=solution_length, initial_bounds=(-1.0, 1.0),
+                         dtype=torch.float32, device=device, seed=seed, store_solution_stats=False)
+        self.told: torch.Tensor | None = None
+
+    def _evaluate_batch(self, batch):
+        if self.told is None or self.told.shape[0] != len(batch):
+            raise RuntimeError("TellProblem evaluated without the matching told fitness")
+        batch.set_evals(self.told)
+
+
+class ESOptimizer(Optimizer):
+    """Shared ask/tell adapter for an ES over ``MLPPolicy`` controllers.
+
+    ``population_size`` is the number of samples per generation; ``ask()`` returns them plus the
+    distribution centre as the last controller, so ``self.population_size`` is one more.
+    ``sigma``: initial (or, for OpenAI-ES, fixed) standard deviation of the search distribution;
+    ``learning_rate``: the centre's learning rate (its meaning per algorithm is in its class
+    docstring). ``reference`` and ``importance``: see ``algorithms.regularizers``. The search
+    distribution starts centred at the zero vector (all controller outputs 0.5).
+    """
+
+    default_sigma: ClassVar[float] = 0.1
+    default_learning_rate: ClassVar[float] = 1.0
+    even_population: ClassVar[bool] = False
+    """Mirrored sampling needs an even number of samples."""
+
+    def __init__(self, *, obs_dim: int, population_size: int = 300, seed: int,
+                 regularization: float = 0.0, device: str | torch.device = "cpu",
+                 hidden: Sequence[int] = (16,), sigma: float | None = None,
+                 learning_rate: float | None = None, reference: str = "centre", importance: str = "l2"):
+        self.layer_sizes = layer_sizes_for(obs_dim, hidden)
+        self.n_parameters = n_parameters(self.layer_sizes)
+        self.n_samples = int(population_size)
+        if self.n_samples < 2:
+            raise ValueError(f"population_size must be >= 2 samples, got {population_size}")
+        if self.even_population and self.n_samples % 2:
+            raise ValueError(f"{self.name} samples mirrored pairs: population_size must be even, "
+                             f"got {population_size}")
+        self.sigma_init = float(self.default_sigma if sigma is None else sigma)
+        self.learning_rate = float(self.default_learning_rate if learning_rate is None else learning_rate)
+        if not (self.sigma_init > 0 and self.learning_rate > 0):
+            raise ValueError(f"sigma and learning_rate must be > 0, got {self.sigma_init}, {self.learning_rate}")
+        self.device = torch.device(device)
+        self.seed = int(seed)
+        self.regularizer = Regularizer(regularization, n_parameters=self.n_parameters,
+                                       reference=reference, importance=importance, device=self.device)
+        centre_init = torch.zeros(self.n_parameters, dtype=torch.float32, device=self.device)
+        with _quiet_evotorch():
+            self.problem = TellProblem(self.n_parameters, seed=self.seed, device=self.device)
+            self.searcher = self._make_searcher(centre_init)
+        self.centre_index = self.n_samples
+        self.generation = 0
+        self._population: torch.Tensor | None = None  # last asked (N + 1, n_parameters)
+        self._pending = False  # asked, not yet told
+
+    # ---- what each algorithm provides -------------------------------------------------------
+    def _make_searcher(self, centre_init: torch.Tensor):
+        raise NotImplementedError
+
+    def _sample(self) -> torch.Tensor:
+        """Draw ``(n_samples, n_parameters)`` samples (may keep what ``_update`` needs)."""
+        raise NotImplementedError
+
+    def _update(self, selection_fitness: torch.Tensor) -> dict[str, float]:
+        """Apply the library's update for the samples' selection fitness; report scalars."""
+        raise NotImplementedError
+
+    @property
+    def centre(self) -> torch.Tensor:
+        """The search distribution's current centre (1-D)."""
+        raise NotImplementedError
+
+    def search_variance(self) -> torch.Tensor | None:
+        """Per-coordinate variance for the EWC importance (CMA-ES); ``None``: use the Fisher diagonal."""
+        return None
+
+    def _searcher_state(self) -> dict[str, Any]:
+        raise NotImplementedError
+
+    def _load_searcher_state(self, state: dict[str, Any]) -> None:
+        raise NotImplementedError
+
+    def _pending_state(self) -> dict[str, Any]:
+        return {}
+
+    def _load_pending_state(self, state: dict[str, Any]) -> None:
+        pass
+
+    # ---- the Optimizer interface --------------------------------------------------------------
+    @property
+    def population_size(self) -> int:
+        return self.n_samples + 1
+
+    def ask(self) -> MLPPolicy:
+        """The samples and, last, the centre; asking again before ``tell`` returns the same ones."""
+        if not self._pending:
+            samples = self._sample()
+            self._population = torch.cat([samples, self.centre.detach().unsqueeze(0)], dim=0)
+            self._pending = True
+        return MLPPolicy(self._population, self.layer_sizes)
+
+    def regularise(self, fitness: torch.Tensor) -> torch.Tensor:
+        if self._population is None:
+            raise RuntimeError("regularise() needs an asked population: call ask() first")
+        self._check_fitness(fitness, "fitness")
+        return self.regularizer(fitness, self._population)
+
+    def tell(self, fitness: torch.Tensor, selection_fitness: torch.Tensor) -> GenerationReport:
+        if not self._pending:
+            raise RuntimeError("tell() without a pending ask(): call ask() first")
+        self._check_fitness(fitness, "fitness")
+        self._check_fitness(selection_fitness, "selection_fitness")
+        if not bool(torch.isfinite(selection_fitness).all()):
+            raise ValueError("selection_fitness has non-finite values")
+        sel = selection_fitness.detach().to(self.device, torch.float32)
+        self.regularizer.observe(self._population, sel)
+        extra = self._update(sel[:self.n_samples])
+        self._pending = False
+        self.generation += 1
+        return GenerationReport(extra=extra)
+
+    def end_task(self) -> None:
+        self.regularizer.end_task(self.centre, self.search_variance())
+
+    def export(self, index: int) -> dict[str, Any]:
+        if self._population is None:
+            raise RuntimeError("export() needs an asked population: call ask() first")
+        index = int(index)
+        if not 0 <= index < self.population_size:
+            raise IndexError(f"controller index {index} not in [0, {self.population_size})")
+        return {"layer_sizes": list(self.layer_sizes),
+                "parameters": self._population[index].detach().cpu().clone()}
+
+    def state_dict(self) -> dict[str, Any]:
+        """Tensors and plain values only (loads with ``torch.load(weights_only=True)``)."""
+        return {
+            "format": STATE_FORMAT, "algorithm": self.name, "layer_sizes": list(self.layer_sizes),
+            "n_samples": self.n_samples, "generation": self.generation,
+            "rng_state": self.problem.generator.get_state().clone(),
+            "population": None if self._population is None else self._population.clone(),
+            "pending": self._pending,
+            "pending_state": self._pending_state() if self._pending else {},
+            "searcher": self._searcher_state(),
+            "regularizer": self.regularizer.state_dict(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state.get("format") != STATE_FORMAT:
+            raise ValueError(f"unknown ES state format {state.get('format')!r}")
+        for key, mine in (("algorithm", self.name), ("layer_sizes", list(self.layer_sizes)),
+                          ("n_samples", self.n_samples)):
+            theirs = list(state[key]) if key == "layer_sizes" else state[key]
+            if theirs != mine:
+                raise ValueError(f"checkpoint has {key}={theirs!r}, this optimiser {mine!r}")
+        self.generation = int(state["generation"])
+        self.problem.generator.set_state(state["rng_state"].cpu())
+        pop = state["population"]
+        self._population = None if pop is None else pop.to(self.device, torch.float32).clone()
+        self._pending = bool(state["pending"])
+        self._load_searcher_state(state["searcher"])
+        if self._pending:
+            self._load_pending_state(state["pending_state"])
+        self.regularizer.load_state_dict(state["regularizer"])
+
+    # ---- helpers ------------------------------------------------------------------------------
+    def _check_fitness(self, values: torch.Tensor, what: str) -> None:
+        if not isinstance(values, torch.Tensor) or values.shape != (self.population_size,):
+            shape = tuple(values.shape) if isinstance(values, torch.Tensor) else type(values).__name__
+            raise ValueError(f"{what} must be a tensor of shape ({self.population_size},), got {shape}")
+
+    def _tensor(self, t: torch.Tensor) -> torch.Tensor:
+        return t.detach().to(self.device, torch.float32).clone()
+
+
+def optimizer_state(optimizer) -> dict[str, Any] | None:
+    """The mutable state of an EvoTorch centre optimiser (Adam/SGD wrapper or ClipUp)."""
+    if optimizer is None:
+        return None
+    if isinstance(optimizer, TorchOptimizer):
+        return {"torch": optimizer.contained_optimizer.state_dict()}
+    if isinstance(optimizer, ClipUp):
+        return {"clipup_velocity": optimizer._velocity.clone()}
+    raise TypeError(f"cannot checkpoint optimiser {type(optimizer).__name__}")
+
+
+def load_optimizer_state(optimizer, state: dict[str, Any] | None) -> None:
+    if optimizer is None or state is None:
+        if (optimizer is None) != (state is None):
+            raise ValueError("checkpoint and optimiser disagree on having a centre optimiser")
+        return
+    if isinstance(optimizer, TorchOptimizer):
+        optimizer.contained_optimizer.load_state_dict(state["torch"])
+    else:
+        optimizer._velocity = state["clipup_velocity"].to(optimizer._velocity).clone()
+
+
+class GaussianES(ESOptimizer):
+    """Adapter for EvoTorch's separable-Gaussian searchers (``GaussianSearchAlgorithm``).
+
+    Subclasses set ``searcher_class`` and return its keyword arguments from ``_searcher_options``.
+    """
+
+    searcher_class: ClassVar[type]
+
+    def _searcher_options(self) -> dict[str, Any]:
+        raise NotImplementedError
+
+    def _make_searcher(self, centre_init):
+        return self.searcher_class(self.problem, popsize=self.n_samples, center_init=centre_init,
+                                   stdev_init=self.sigma_init, **self._searcher_options())
+
+    @property
+    def centre(self) -> torch.Tensor:
+        return self.searcher._distribution.mu
+
+    def _sample(self) -> torch.Tensor:
+        out = torch.empty(self.n_samples, self.n_parameters, dtype=torch.float32, device=self.device)
+        return self.searcher._distribution.sample(out=out, generator=self.problem)
+
+    def _update(self, selection_fitness):
+        s = self.searcher
+        dist = s._distribution
+        samples = self._population[:self.n_samples]
+        if self.regularizer.needs_sensitivity:
+            self.regularizer.observe_gaussian(samples, dist.mu, dist.sigma, selection_fitness)
+        grads = dist.compute_gradients(samples, selection_fitness, objective_sense="max",
+                                       ranking_method=s._ranking_method)
+        s._update_distribution(grads)
+        sigma = s._distribution.sigma
+        return {"stdev_mean": float(sigma.mean()), "centre_step": float((s._distribution.mu - dist.mu).norm())}
+
+    def _searcher_state(self):
+        d = self.searcher._distribution
+        return {"mu": d.mu.clone(), "sigma": d.sigma.clone(), "optimizer": optimizer_state(self.searcher._optimizer)}
+
+    def _load_searcher_state(self, state):
+        s = self.searcher
+        s._distribution = s._distribution.modified_copy(mu=self._tensor(state["mu"]), sigma=self._tensor(state["sigma"]))
+        load_optimizer_state(s._optimizer, state["optimizer"])
+
+
+def _registry() -> dict[str, type[ESOptimizer]]:
+    from .cmaes import CMAES, SepCMAES
+    from .openai_es import OpenAIES
+    from .pgpe import PGPE
+    from .snes import SNES
+    return {cls.name: cls for cls in (CMAES, SepCMAES, OpenAIES, PGPE, SNES)}
+
+
+ES_ALGORITHMS: dict[str, type[Optimizer]] = _registry()
+"""Every ES by registry name."""

@@ -1,0 +1,405 @@
+"""``python -m lifelong_evo plot RUN... [--out DIR]``: the paper's figures as PNG (matplotlib, Agg).
+
+For each group of runs that share a configuration (config.json without seed and name):
+
+``<prefix>-retention-pop.png``  current performance C (solid) and population retention R_pop
+                                 (dashed) per task colour over generations; drifts as dotted lines
+``<prefix>-retention-top.png``  the same with the retention of the current top individual
+``<prefix>-species.png``        NEAT: the number of species over generations
+``<prefix>-lifespans.png``      NEAT: each species' life (birth to extinction) and size, from
+                                 ``species.csv`` (generation, species_id, size)
+
+A group of several seeds is drawn as the mean over seeds with a shaded min-max band (lifespans: the
+first seed). Colours are the task colours. Without ``--out`` a single run's figures go into its run
+directory and several groups' into ``plots/``.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+COLOUR_RGB: dict[int, tuple[int, int, int]] = {
+    3: (228, 26, 28),     # red
+    4: (55, 126, 184),    # blue
+    5: (60, 170, 60),     # green
+    6: (240, 200, 0),     # yellow
+    7: (152, 78, 163),    # purple
+    8: (235, 235, 235),   # white
+    9: (0, 185, 210),     # cyan
+    10: (25, 25, 25),     # black
+}
+"""Display colour of each colour id (envs.COLOR_IDS), shared by the figures and the recording."""
+GREY = (150, 150, 150)
+
+
+def colour_rgb(colour_id: int) -> tuple[int, int, int]:
+    return COLOUR_RGB.get(int(colour_id), GREY)
+
+
+def task_rgb(task: str) -> tuple[int, int, int]:
+    """The colour of a task's target (``red`` -> red); grey for an unknown name."""
+    from envs import TASKS
+
+    return colour_rgb(TASKS[task].target) if task in TASKS else GREY
+
+
+def task_colour(task: str) -> tuple[float, float, float]:
+    """``task_rgb`` as matplotlib wants it (0..1)."""
+    return tuple(c / 255 for c in task_rgb(task))
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading run directories
+
+
+@dataclass
+class Run:
+    """What the figures and the comparison read from one run directory."""
+
+    path: Path
+    config: dict[str, Any]
+    summary: dict[str, Any]
+    metrics: list[dict[str, str]] = field(default_factory=list)
+
+    @property
+    def seed(self):
+        return self.config.get("seed")
+
+    @property
+    def key(self) -> str:
+        return config_key(self.config)
+
+    def column(self, name: str) -> np.ndarray:
+        """A metrics.csv column as floats over generations (NaN where empty or absent)."""
+        return np.array([_float(row.get(name, "")) for row in self.metrics], dtype=float)
+
+    @property
+    def generations(self) -> np.ndarray:
+        return np.array([int(row["generation"]) for row in self.metrics], dtype=int)
+
+    @property
+    def tasks(self) -> list[str]:
+        """The tasks of the metrics rows, one per generation."""
+        return [row["task"] for row in self.metrics]
+
+    def species_rows(self) -> list[tuple[int, int, int]] | None:
+        path = self.path / "species.csv"
+        if not path.exists():
+            return None
+        with open(path, newline="") as handle:
+            rows = []
+            for row in csv.DictReader(handle):
+                try:
+                    rows.append((int(row["generation"]), int(row["species_id"]), int(row["size"])))
+                except (KeyError, TypeError, ValueError):
+                    continue  # a half-written last line of a killed run
+        return rows
+
+
+def _float(text: str) -> float:
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+IGNORED_CONFIG_KEYS = ("seed", "versions", "name", "record", "threads", "device", "checkpoint_every",
+                       "episodes_every")
+"""config.json keys that do not make two runs different configurations (the seed, and what does
+not change the results)."""
+
+
+def config_key(config: dict[str, Any]) -> str:
+    """A canonical string of a configuration, seed (and library versions) left out."""
+    return json.dumps({k: v for k, v in config.items() if k not in IGNORED_CONFIG_KEYS}, sort_keys=True)
+
+
+def describe_config(config: dict[str, Any], others: list[dict[str, Any]] | None = None) -> str:
+    """A short label: algorithm, lambda, schedule, and whatever else differs from ``others``."""
+    label = f"{config.get('algo')} reg={config.get('reg', 0):g} {config.get('schedule')}"
+    if others:
+        plain = {"algo", "reg", "schedule", "env_resolved", *IGNORED_CONFIG_KEYS}
+        differing = sorted(k for k in config if k not in plain
+                           and any(o.get(k) != config.get(k) for o in others))
+        extra = []
+        for key in differing:
+            value = config[key]
+            extra.append(f"{key}={json.dumps(value, sort_keys=True) if isinstance(value, dict) else value}")
+        if extra:
+            label += " " + " ".join(extra)
+    return label
+
+
+def is_run_dir(path: Path) -> bool:
+    return (path / "config.json").is_file() and (path / "summary.json").is_file()
+
+
+def find_run_dirs(paths) -> list[Path]:
+    """Every run directory (config.json + summary.json) at or under ``paths``, sorted."""
+    from .cli import CliError
+
+    found: set[Path] = set()
+    for given in paths:
+        path = Path(given)
+        if not path.exists():
+            raise CliError(f"{path} does not exist: give run directories or folders that hold them")
+        if is_run_dir(path):
+            found.add(path)
+            continue
+        for config in path.rglob("config.json"):
+            if is_run_dir(config.parent):
+                found.add(config.parent)
+    if not found:
+        raise CliError(f"no run directory (config.json + summary.json) under {', '.join(map(str, paths))}: "
+                       "run `python -m lifelong_evo run` first or check the path")
+    return sorted(found)
+
+
+def load_run(path: Path, with_metrics: bool = True) -> Run:
+    from .rundir import read_json, read_metrics
+
+    config = read_json(path / "config.json")
+    summary = read_json(path / "summary.json")
+    metrics = read_metrics(path / "metrics.csv") if with_metrics and (path / "metrics.csv").exists() else []
+    return Run(path=path, config=config, summary=summary, metrics=metrics)
+
+
+def group_runs(runs: list[Run]) -> list[list[Run]]:
+    """Runs grouped by configuration (in order of first appearance), each group sorted by seed."""
+    groups: dict[str, list[Run]] = {}
+    for run in runs:
+        groups.setdefault(run.key, []).append(run)
+    return [sorted(group, key=lambda r: (str(r.seed), str(r.path))) for group in groups.values()]
+
+
+# ---------------------------------------------------------------------------------------------
+# Series over seeds
+
+
+def drift_generations(run: Run) -> list[int]:
+    """Generations at which a new phase starts (from task_index in metrics.csv)."""
+    index = [int(row["task_index"]) for row in run.metrics]
+    return [int(run.metrics[i]["generation"]) for i in range(1, len(index)) if index[i] != index[i - 1]]
+
+
+def stack(group: list[Run], column: str) -> tuple[np.ndarray, np.ndarray]:
+    """(generations, values (seeds, generations)) of a column, cut to the shortest run."""
+    length = min(len(run.metrics) for run in group)
+    generations = group[0].generations[:length]
+    return generations, np.stack([run.column(column)[:length] for run in group])
+
+
+def current_by_task(group: list[Run], column: str = "best") -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per task: (generations, values (seeds, generations)) of ``column`` masked to the generations
+    where that task is the current one (NaN elsewhere, so that phases are separate lines)."""
+    generations, values = stack(group, column)
+    tasks = np.array(group[0].tasks[:len(generations)])
+    out = {}
+    for task in dict.fromkeys(tasks):
+        masked = np.where(tasks[None, :] == task, values, np.nan)
+        out[str(task)] = (generations, masked)
+    return out
+
+
+def retention_by_task(group: list[Run], level: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per earlier task: the measured retention points (generations where any seed measured it)."""
+    out = {}
+    columns = [c for c in group[0].metrics[0] if c.startswith(f"retention_{level}_")] if group[0].metrics else []
+    for column in columns:
+        generations, values = stack(group, column)
+        measured = ~np.all(np.isnan(values), axis=0)
+        if measured.any():
+            out[column[len(f"retention_{level}_"):]] = (generations[measured], values[:, measured])
+    return out
+
+
+def _band(ax, generations, values, colour, linestyle, label, marker=None):
+    """Mean over seeds (rows) and, with several seeds, a min-max band."""
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mean = np.nanmean(values, axis=0)
+            low, high = np.nanmin(values, axis=0), np.nanmax(values, axis=0)
+    ax.plot(generations, mean, color=colour, linestyle=linestyle, label=label, linewidth=1.6, marker=marker,
+            markersize=3)
+    if values.shape[0] > 1:
+        ax.fill_between(generations, low, high, color=colour, alpha=0.18, linewidth=0)
+
+
+def _drifts(ax, run: Run) -> None:
+    for i, g in enumerate(drift_generations(run)):
+        ax.axvline(g - 0.5, color="0.35", linestyle=":", linewidth=1.0, label="drift" if i == 0 else None)
+
+
+def _title(group: list[Run]) -> str:
+    seeds = [r.seed for r in group]
+    text = describe_config(group[0].config)
+    return text + (f" ({len(group)} seeds, mean and min-max)" if len(group) > 1 else f" (seed {seeds[0]})")
+
+
+# ---------------------------------------------------------------------------------------------
+# Figures
+
+
+def figure_retention(group: list[Run], level: str, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    what = {"pop": "population retention R_pop", "top": "top-individual retention R_top"}[level]
+    fig, ax = plt.subplots(figsize=(9, 4.8), constrained_layout=True)
+    for task, (generations, values) in current_by_task(group).items():
+        _band(ax, generations, values, task_colour(task), "-", f"{task}: current C")
+    for task, (generations, values) in retention_by_task(group, level).items():
+        marker = "o" if len(generations) < 40 else None
+        _band(ax, generations, values, task_colour(task), "--", f"{task}: {what.split(' R_')[0]}", marker=marker)
+    _drifts(ax, group[0])
+    ax.set_xlabel("generation")
+    ax.set_ylabel("fitness (reward per episode)")
+    ax.set_title(f"Current performance and {what}\n{_title(group)}", fontsize=10)
+    ax.grid(alpha=0.25)
+    ax.legend(fontsize=8, loc="best")
+    return _save(fig, path)
+
+
+def figure_species(group: list[Run], path: Path) -> Path | None:
+    import matplotlib.pyplot as plt
+
+    if not group[0].metrics or "species" not in group[0].metrics[0]:
+        return None
+    generations, values = stack(group, "species")
+    if np.all(np.isnan(values)):
+        return None
+    fig, ax = plt.subplots(figsize=(9, 3.6), constrained_layout=True)
+    _band(ax, generations, values, "0.2", "-", "species")
+    _drifts(ax, group[0])
+    _shade_phases(ax, group[0])
+    ax.set_xlabel("generation")
+    ax.set_ylabel("species")
+    ax.yaxis.get_major_locator().set_params(integer=True)
+    ax.set_title(f"Number of species\n{_title(group)}", fontsize=10)
+    ax.grid(alpha=0.25)
+    ax.legend(fontsize=8, loc="best")
+    return _save(fig, path)
+
+
+def _shade_phases(ax, run: Run) -> None:
+    """A faint band of each phase's task colour along the bottom of the axes."""
+    generations = run.generations
+    tasks = run.tasks
+    start = 0
+    for i in range(1, len(tasks) + 1):
+        if i == len(tasks) or run.metrics[i]["task_index"] != run.metrics[start]["task_index"]:
+            ax.axvspan(generations[start] - 0.5, generations[i - 1] + 0.5, ymin=0, ymax=0.03,
+                       color=task_colour(tasks[start]), alpha=0.8, linewidth=0)
+            start = i
+
+
+def figure_lifespans(run: Run, path: Path) -> Path | None:
+    """One horizontal bar per species from its first to its last generation; thickness and shade
+    follow its size (members), drifts as dotted lines."""
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+
+    rows = run.species_rows()
+    if not rows:
+        return None
+    by_species: dict[int, list[tuple[int, int]]] = {}
+    for generation, species_id, size in rows:
+        by_species.setdefault(species_id, []).append((generation, size))
+    order = sorted(by_species, key=lambda s: (min(g for g, _ in by_species[s]), s))
+    biggest = max(size for _, _, size in rows)
+    fig, ax = plt.subplots(figsize=(9, max(3.0, min(12.0, 1.2 + 0.22 * len(order)))), constrained_layout=True)
+    segments, widths, colours = [], [], []
+    cmap = plt.get_cmap("viridis")
+    for y, species_id in enumerate(order):
+        for generation, size in sorted(by_species[species_id]):
+            segments.append([(generation - 0.5, y), (generation + 0.5, y)])
+            widths.append(1.0 + 7.0 * size / biggest)
+            colours.append(cmap(0.15 + 0.8 * size / biggest))
+    ax.add_collection(LineCollection(segments, linewidths=widths, colors=colours))
+    ax.set_xlim(run.generations.min() - 1, run.generations.max() + 1)
+    ax.set_ylim(-1, len(order))
+    ax.set_yticks(range(len(order)))
+    ax.set_yticklabels([str(s) for s in order], fontsize=7 if len(order) < 40 else 5)
+    _drifts(ax, run)
+    ax.set_xlabel("generation")
+    ax.set_ylabel("species id (by birth)")
+    scale = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(0, biggest))
+    fig.colorbar(scale, ax=ax, label="members", shrink=0.8)
+    ax.set_title(f"Species lifespans\n{describe_config(run.config)} (seed {run.seed})", fontsize=10)
+    ax.grid(alpha=0.2, axis="x")
+    if drift_generations(run):
+        ax.legend(fontsize=8, loc="upper right")
+    return _save(fig, path)
+
+
+def _save(fig, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def slug(config: dict[str, Any]) -> str:
+    text = f"{config.get('algo')}-{config.get('schedule')}-reg{config.get('reg', 0):g}"
+    return re.sub(r"[^A-Za-z0-9.]+", "-", text).strip("-")
+
+
+def plot_group(group: list[Run], out: Path, prefix: str) -> list[Path]:
+    """Every figure of one configuration's runs; returns the files written."""
+    written = [figure_retention(group, "pop", out / f"{prefix}-retention-pop.png"),
+               figure_retention(group, "top", out / f"{prefix}-retention-top.png"),
+               figure_species(group, out / f"{prefix}-species.png"),
+               figure_lifespans(group[0], out / f"{prefix}-lifespans.png")]
+    return [path for path in written if path is not None]
+
+
+def plot_runs(paths, out: str | Path | None = None) -> list[Path]:
+    """Figures for every run at or under ``paths``, grouped by configuration."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from .cli import CliError
+
+    runs = [load_run(p) for p in find_run_dirs(paths)]
+    runs = [r for r in runs if r.metrics]
+    if not runs:
+        raise CliError("the runs have no metrics.csv rows yet: let a run write some generations first")
+    groups = group_runs(runs)
+    written = []
+    prefixes: dict[str, int] = {}
+    for group in groups:
+        if out is not None:
+            target = Path(out)
+        elif len(groups) == 1 and len(group) == 1:
+            target = group[0].path
+        else:
+            target = Path("plots")
+        prefix = slug(group[0].config)
+        prefixes[prefix] = prefixes.get(prefix, 0) + 1
+        if prefixes[prefix] > 1:  # same algorithm, schedule and lambda, other options
+            prefix += f"-{prefixes[prefix]}"
+        written += plot_group(group, target, prefix)
+    return written
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("runs", nargs="+", metavar="RUN", help="run directories or folders holding them")
+    parser.add_argument("--out", default=None, metavar="DIR",
+                        help="where to write the PNGs (default: the run directory for one run, else plots/)")
+
+
+def main(args: argparse.Namespace) -> int:
+    for path in plot_runs(args.runs, args.out):
+        print(path)
+    return 0

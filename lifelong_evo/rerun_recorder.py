@@ -1,0 +1,336 @@
+"""The Rerun recording of a run (rerun-sdk 0.41): ``runs/<name>/recording.rrd``.
+
+What is recorded (application id ``lifelong_evo``, recording id ``lifelong_evo/<run name>``):
+
+``generation`` timeline, one row per generation (series coloured by task colour):
+  ``curves/current/<task>/best`` and ``.../mean``      raw fitness of the current task
+  ``curves/regularised/<task>/best`` and ``.../mean``  after the regulariser
+  ``curves/retention_pop/<task>``, ``curves/retention_top/<task>``, ``curves/retention_centre/<task>``
+                                                       earlier tasks, where measured
+  ``curves/centre/<task>``                             an ES's centre on the current task
+  ``curves/species``                                   NEAT's species count
+  ``curves/extra/<name>``                              the optimiser's extra scalars (e.g. ES sigma)
+  ``log``                                              a text entry at each drift and task end
+``step`` timeline, episodes of each task end's top individual on every task seen so far, under
+``episodes/gen<G>_<phase task>/on_<task>/``: ``arena`` and ``drop_zone`` (static outlines),
+``boxes`` (present boxes in their colour, logged at the steps where they change), ``agents``
+(coloured by the box they carry, grey when empty), ``trails`` (each agent's last 20 positions)
+and ``reward`` (cumulative). These rows also carry the ``generation`` index, so the generation
+timeline shows each episode's last frame. Screen coordinates are (y, x): x is the vertical axis
+and x = 0, where the drop zone is, is the top edge (a 2D view's y axis points down).
+Episodes are sent column-wise (``send_columns``, one call per entity): a paper run's file stays
+at a few MB.
+
+A default blueprint comes with the recording: the curves on the left, the arena (one tab per
+episode) on the right, the text log below.
+
+Resume: rerun 0.41 cannot append to an .rrd file, so ``--resume`` writes the continuation to
+``recording-resumed-<generation>.rrd`` beside ``recording.rrd`` (<generation> = the checkpoint it
+continues from), with the same application and recording id; ``python -m lifelong_evo view RUN``
+opens all parts, which the viewer merges into one recording. Generations recorded after the last
+checkpoint of the interrupted part are recorded again by the resumed part (with equal values: the
+checkpoint holds every random state).
+
+Streaming instead of a file: ``LIFELONG_EVO_RERUN=connect`` sends to a running viewer (start one
+with ``rerun``) at ``rerun+http://127.0.0.1:9876/proxy`` or at ``LIFELONG_EVO_RERUN_URL``;
+``LIFELONG_EVO_RERUN=both`` does both; ``file`` (the default) writes the file only.
+"""
+from __future__ import annotations
+
+import os
+import re
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .episodes import Episode
+from .plots import GREY, colour_rgb, task_rgb
+from .recording import Recorder
+
+APPLICATION_ID = "lifelong_evo"
+ENV_MODE = "LIFELONG_EVO_RERUN"
+ENV_URL = "LIFELONG_EVO_RERUN_URL"
+MODES = ("file", "connect", "both")
+TRAIL = 20
+"""Positions in an agent's trail."""
+FLUSH_GENERATIONS = 25
+FLUSH_SECONDS = 30.0
+"""Curve points are sent every this many generations or seconds (and at drifts, task ends, close)."""
+AGENT_RADIUS = 0.5
+BOX_RADIUS = 0.3
+ARENA_RGB = (200, 200, 200)
+DROP_ZONE_RGB = (255, 170, 60)
+FLOOR_RGB = (70, 72, 80)
+
+
+def sink_mode() -> str:
+    mode = os.environ.get(ENV_MODE, "").strip().lower() or "file"
+    if mode not in MODES:
+        from .cli import CliError
+
+        raise CliError(f"{ENV_MODE}={mode!r} is not one of {', '.join(MODES)}: unset it to write recording.rrd")
+    return mode
+
+
+def episode_path(generation: int, phase_task: str, task: str) -> str:
+    return f"episodes/gen{generation:04d}_{phase_task}/on_{task}"
+
+
+def expected_episode_paths(config) -> list[tuple[str, str]]:
+    """(entity path, view name) of the episodes the loop records at task ends, in order."""
+    from .schedule import distinct_tasks
+
+    phases = config.phases()
+    tasks = distinct_tasks(phases)
+    names = [p.name for p in phases]
+    paths, generation = [], -1
+    for i, phase in enumerate(phases):
+        generation += phase.generations
+        for task in tasks:
+            if task.name in names[:i + 1]:
+                paths.append((episode_path(generation, phase.name, task.name),
+                              f"gen {generation} {phase.name} top on {task.name}"))
+    return paths
+
+
+def make_blueprint(task_names: list[str], episodes: list[tuple[str, str]], curves: bool = True):
+    """Curves on the left (current performance above, retention/regularised/species in tabs),
+    the arena on the right (one tab per episode, cumulative reward below), the text log below."""
+    import rerun.blueprint as rrb
+
+    arenas = [rrb.Spatial2DView(origin=path, name=name, background=FLOOR_RGB) for path, name in episodes]
+    if not arenas:
+        arenas = [rrb.Spatial2DView(origin="episodes", name="arena (no episode yet)", background=FLOOR_RGB)]
+    reward = rrb.TimeSeriesView(origin="episodes", contents=["+ /episodes/**/reward"],
+                                name="episode reward (step timeline)")
+    right = rrb.Vertical(rrb.Tabs(*arenas), reward, row_shares=[3, 1])
+    parts = []
+    if curves:
+        left = rrb.Vertical(
+            rrb.TimeSeriesView(origin="curves/current", name="current task: best and mean fitness"),
+            rrb.Tabs(rrb.TimeSeriesView(origin="curves/retention_pop", name="retention: population"),
+                     rrb.TimeSeriesView(origin="curves/retention_top", name="retention: top individual"),
+                     rrb.TimeSeriesView(origin="curves/regularised", name="regularised fitness"),
+                     rrb.TimeSeriesView(origin="curves", contents=["+ /curves/species", "+ /curves/centre/**",
+                                                                   "+ /curves/extra/**"],
+                                        name="species / centre / optimiser")),
+            row_shares=[1, 1])
+        parts = [rrb.Horizontal(left, right, column_shares=[3, 2])]
+    else:
+        parts = [right]
+    layout = rrb.Vertical(*parts, rrb.TextLogView(origin="log", name="log"), row_shares=[5, 1])
+    return rrb.Blueprint(layout, rrb.TimePanel(timeline="generation" if curves else "step"),
+                         rrb.SelectionPanel(state="collapsed"), rrb.BlueprintPanel(state="collapsed"),
+                         auto_views=False)
+
+
+class RerunRecorder(Recorder):
+    """Writes a run (or a replay) to an .rrd file and/or a viewer; the stream opens at the first
+    log call, so that the run directory is created (or cleared by --overwrite) before."""
+
+    wants_episodes = True
+
+    def __init__(self, path: Path | None, *, recording_id: str, recording_name: str, arena_size: float,
+                 blueprint=None, mode: str = "file"):
+        self.path = Path(path) if path is not None else None
+        self.recording_id = recording_id
+        self.recording_name = recording_name
+        self.arena_size = float(arena_size)
+        self.blueprint = blueprint
+        self.mode = mode
+        self._stream = None
+        self._styled: set[str] = set()
+        self._pending: dict[str, list[tuple[int, float]]] = {}
+        self._pending_rows = 0
+        self._last_flush = time.monotonic()
+        self.episodes_logged: list[str] = []
+
+    @classmethod
+    def for_run(cls, run_dir, config, resume: bool) -> "RerunRecorder":
+        name = run_dir.path.resolve().name
+        path = run_dir.recording
+        if resume:
+            checkpoint = run_dir.latest_checkpoint()
+            if checkpoint is not None:
+                generation = int(re.sub(r"\D", "", checkpoint.stem) or 0)
+                path = run_dir.path / f"recording-resumed-{generation:06d}.rrd"
+        task_names = list(dict.fromkeys(p.name for p in config.phases()))
+        return cls(path, recording_id=f"{APPLICATION_ID}/{name}", recording_name=name,
+                   arena_size=config.env_config().size,
+                   blueprint=make_blueprint(task_names, expected_episode_paths(config)), mode=sink_mode())
+
+    # -- stream ---------------------------------------------------------------------------------
+
+    @property
+    def stream(self):
+        if self._stream is None:
+            import rerun as rr
+
+            stream = rr.RecordingStream(APPLICATION_ID, recording_id=self.recording_id)
+            url = os.environ.get(ENV_URL) or None
+            if self.mode == "connect":
+                stream.connect_grpc(url, default_blueprint=self.blueprint)
+            elif self.mode == "both":
+                stream.set_sinks(rr.FileSink(str(self.path)), rr.GrpcSink(url) if url else rr.GrpcSink(),
+                                 default_blueprint=self.blueprint)
+            else:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                stream.save(self.path, default_blueprint=self.blueprint)
+            stream.send_recording_name(self.recording_name)
+            self._stream = stream
+        return self._stream
+
+    def _style(self, entity: str, colour, name: str, width: float = 2.0) -> None:
+        if entity in self._styled:
+            return
+        import rerun as rr
+
+        self.stream.log(entity, rr.SeriesLines(colors=[colour], names=[name], widths=[width]), static=True)
+        self._styled.add(entity)
+
+    def _scalar(self, generation: int, entity: str, value, colour, name: str, width: float = 2.0) -> None:
+        """Buffer one curve point; ``flush_curves`` sends the buffer column-wise (a chunk per curve
+        and flush instead of one per point keeps a long run's file small)."""
+        if value is None or value == "" or (isinstance(value, float) and np.isnan(value)):
+            return
+        self._style(entity, colour, name, width)
+        self._pending.setdefault(entity, []).append((generation, float(value)))
+
+    def flush_curves(self) -> None:
+        import rerun as rr
+
+        for entity, points in self._pending.items():
+            generations, values = zip(*points)
+            self.stream.send_columns(entity, indexes=[rr.TimeColumn("generation", sequence=generations)],
+                                     columns=rr.Scalars.columns(scalars=np.array(values, dtype=np.float64)))
+        self._pending = {}
+        self._pending_rows = 0
+        self._last_flush = time.monotonic()
+
+    def text(self, at: int | None, message: str, level: str = "INFO", timeline: str = "generation") -> None:
+        """A ``log`` entry at ``at`` on ``timeline``."""
+        import rerun as rr
+
+        self.flush_curves()
+        if at is not None:
+            self.stream.set_time(timeline, sequence=at)
+        self.stream.log("log", rr.TextLog(message, level=level))
+
+    # -- Recorder -------------------------------------------------------------------------------
+
+    def log_generation(self, row: dict[str, Any], report) -> None:
+        generation = int(row["generation"])
+        if generation == 0 and row.get("generation_in_task", 0) == 0:
+            self.text(generation, f"run {self.recording_name}: task {row['task']} from generation 0. "
+                                  "Episodes play on the 'step' timeline (pick it in the time panel).")
+        task = row["task"]
+        colour = task_rgb(task)
+        light = tuple(int(c + (255 - c) * 0.45) for c in colour)
+        self._scalar(generation, f"curves/current/{task}/best", row.get("best"), colour, f"{task} best", 2.0)
+        self._scalar(generation, f"curves/current/{task}/mean", row.get("mean"), light, f"{task} mean", 1.0)
+        self._scalar(generation, f"curves/regularised/{task}/best", row.get("reg_best"), colour, f"{task} regularised best", 2.0)
+        self._scalar(generation, f"curves/regularised/{task}/mean", row.get("reg_mean"), light, f"{task} regularised mean", 1.0)
+        if "centre" in row:
+            self._scalar(generation, f"curves/centre/{task}", row["centre"], colour, f"{task} centre", 1.5)
+        if "species" in row:
+            self._scalar(generation, "curves/species", row["species"], (220, 220, 220), "species", 1.5)
+        for key, value in row.items():
+            for level, width in (("pop", 2.0), ("top", 1.5), ("centre", 1.0)):
+                prefix = f"retention_{level}_"
+                if key.startswith(prefix):
+                    other = key[len(prefix):]
+                    self._scalar(generation, f"curves/retention_{level}/{other}", value, task_rgb(other),
+                                 f"{other} retention ({level})", width)
+        for name, value in (getattr(report, "extra", None) or {}).items():
+            self._scalar(generation, f"curves/extra/{name}", value, (200, 200, 200), name, 1.0)
+        self._pending_rows += 1
+        if self._pending_rows >= FLUSH_GENERATIONS or time.monotonic() - self._last_flush > FLUSH_SECONDS \
+                or self.mode != "file":
+            self.flush_curves()
+
+    def log_drift(self, generation: int, previous: str, task: str) -> None:
+        self.text(generation, f"generation {generation}: drift {previous} -> {task}", level="WARN")
+
+    def log_episode(self, generation: int, phase_index: int, phase_task: str, task, episode: Episode) -> None:
+        path = episode_path(generation, phase_task, task.name)
+        self.log_episode_at(path, episode, generation=generation)
+        self.text(generation, f"generation {generation}: end of phase {phase_index} ({phase_task}); its top "
+                              f"individual earns {episode.total_reward:g} on {task.name} ({path})")
+
+    def log_episode_at(self, path: str, episode: Episode, generation: int | None = None) -> None:
+        """One episode under ``path`` on the ``step`` timeline (and at ``generation``, if given)."""
+        import rerun as rr
+
+        self.flush_curves()
+        stream = self.stream
+        self.episodes_logged.append(path)
+        size = self.arena_size
+        corners = np.array([[0, 0], [size, 0], [size, size], [0, size], [0, 0]], dtype=np.float32)
+        stream.log(f"{path}/arena", rr.LineStrips2D([corners], colors=[ARENA_RGB], radii=[0.08]), static=True)
+        zone = np.array([[0, 0], [size, 0], [size, 1], [0, 1], [0, 0]], dtype=np.float32)
+        stream.log(f"{path}/drop_zone", rr.LineStrips2D([zone], colors=[DROP_ZONE_RGB], radii=[0.06],
+                                                         labels=["drop zone"]), static=True)
+        stream.log(f"{path}/agents", rr.Points2D.from_fields(radii=[AGENT_RADIUS]), static=True)
+        stream.log(f"{path}/boxes", rr.Points2D.from_fields(radii=[BOX_RADIUS]), static=True)
+        stream.log(f"{path}/trails", rr.LineStrips2D.from_fields(radii=[0.05]), static=True)
+        stream.log(f"{path}/reward", rr.SeriesLines(colors=[task_rgb(episode.task)],
+                                                    names=[f"{path.split('/', 1)[1]} reward"]), static=True)
+
+        steps, agents = episode.agent_pos.shape[:2]
+        screen = episode.agent_pos[..., ::-1].astype(np.float32)  # (x, y) -> screen (y, x)
+
+        def indexes(rows: np.ndarray):
+            columns = [rr.TimeColumn("step", sequence=rows)]
+            if generation is not None:
+                columns.append(rr.TimeColumn("generation", sequence=np.full(len(rows), generation)))
+            return columns
+
+        all_steps = np.arange(steps)
+        carried = episode.carried_colour
+        palette = _palette()
+        agent_colours = palette[np.clip(carried, 0, len(palette) - 1)].reshape(-1, 3)
+        stream.send_columns(f"{path}/agents", indexes=indexes(all_steps),
+                            columns=rr.Points2D.columns(positions=screen.reshape(-1, 2),
+                                                        colors=agent_colours).partition([agents] * steps))
+        # trails: per step, each agent's last TRAIL positions (fewer at the start)
+        lengths = np.minimum(all_steps + 1, TRAIL)
+        strips = [screen[t + 1 - lengths[t]:t + 1, a] for t in range(steps) for a in range(agents)]
+        stream.send_columns(f"{path}/trails", indexes=indexes(all_steps),
+                            columns=rr.LineStrips2D.columns(strips=strips,
+                                                            colors=agent_colours).partition([agents] * steps))
+        # boxes: only the steps where a box moved, appeared or vanished (the viewer holds the rest)
+        box_screen = episode.box_pos[..., ::-1].astype(np.float32)
+        present = episode.box_present.astype(bool)
+        changed = np.ones(steps, dtype=bool)
+        changed[1:] = (present[1:] != present[:-1]).any(axis=1) | \
+            ((box_screen[1:] != box_screen[:-1]).any(axis=2) & present[1:]).any(axis=1)
+        rows = np.flatnonzero(changed)
+        box_colours = palette[np.clip(episode.box_colour, 0, len(palette) - 1)]
+        counts = present[rows].sum(axis=1)
+        positions = np.concatenate([box_screen[t][present[t]] for t in rows]) if counts.sum() else \
+            np.zeros((0, 2), np.float32)
+        colours = np.concatenate([box_colours[present[t]] for t in rows]) if counts.sum() else \
+            np.zeros((0, 3), np.uint8)
+        stream.send_columns(f"{path}/boxes", indexes=indexes(rows),
+                            columns=rr.Points2D.columns(positions=positions, colors=colours).partition(counts))
+        cumulative = np.concatenate([[0.0], np.cumsum(episode.rewards, dtype=np.float64)])[:steps]
+        stream.send_columns(f"{path}/reward", indexes=[rr.TimeColumn("step", sequence=all_steps)],
+                            columns=rr.Scalars.columns(scalars=cumulative))
+
+    def close(self) -> None:
+        if self._pending:
+            self.flush_curves()
+        if self._stream is not None:
+            self._stream.flush()
+            self._stream.disconnect()
+            self._stream = None
+
+
+def _palette() -> np.ndarray:
+    """RGB by colour id (index 0: nothing carried -> grey)."""
+    top = 11
+    palette = np.array([colour_rgb(i) if i >= 3 else GREY for i in range(top + 1)], dtype=np.uint8)
+    palette[0] = GREY
+    return palette

@@ -1,0 +1,642 @@
+"""``python -m lifelong_evo sweep``: a grid of lifelong runs (algorithms x lambda x seeds x ...) on Ray.
+
+Any run option takes comma-separated values, and every option given more than one value is an
+axis of the grid::
+
+    python -m lifelong_evo sweep --algo neat,cmaes,openai-es --reg 0,5,11 --seed 13,17,24,31,42 --name my-sweep
+    python -m lifelong_evo sweep --config examples/sweep.toml          # [grid] table of lists + fixed keys
+
+``--schedule`` values are separated by ``;`` (a custom schedule has commas of its own; named
+schedules may also be separated by commas). ``--env KEY=V1,V2`` and ``--option KEY=V1,V2`` make
+axes too; write a list-valued option in brackets (``--option hidden=[16,16]``, an axis of lists:
+``hidden=[16],[32,32]``).
+
+Each trial is an ordinary run (``lifelong_evo.loop.run``) in ``<out>/<sweep>/<trial>/`` with the
+run-directory contract, named from its axes (``neat-reg5-seed13``). The sweep directory also holds
+``sweep.json`` (grid and trials), ``trials.csv`` (trial, status done/failed/pending, error, wall
+time) and ``comparison.md`` (the ``compare`` table of the sweep plus the model-specific lambda rows).
+
+Running the same command again skips finished trials and resumes unfinished ones from their
+checkpoints (``--overwrite`` restarts every trial). A failed trial is recorded and the others go
+on; Ctrl-C cancels the running trials (their checkpoints are kept) and exits with 130.
+
+Model-specific lambda ("m.s. reg"): for each configuration without lambda and each seed, the lambda
+maximising ``C(phase 1) + R_top(task of phase 0 at the end of phase 1)`` from ``summary.json``
+(current performance plus retention of the top individual at the end of the second task; ties go
+to the smaller lambda), reported as its own row with the chosen lambda per seed.
+
+Ray: by default a local Ray with one CPU per core; each trial reserves ``--threads`` CPUs (1 unless
+told otherwise) and ``--gpus-per-trial`` GPUs (runs then use ``--device cuda``). ``--address
+HOST:PORT`` (or ``auto``) runs on an existing cluster (``ray start --head`` on one machine,
+``ray start --address=HOST:6379`` on the others); the lifelong_evo, algorithms and envs packages
+are shipped to the workers, the output folder must be on storage every node sees.
+"""
+from __future__ import annotations
+
+import argparse
+import ast
+import csv
+import hashlib
+import io
+import itertools
+import json
+import math
+import os
+import re
+import sys
+import time
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from .checkpoint import atomic_write_bytes
+from .cli import CliError, add_run_options, default_name, parse_assignments, resolve_run_config
+from .config import PRESETS, RunConfig, load_toml
+from .rundir import RunDirError, read_json, write_json
+
+RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in ("env", "algo_options")]
+"""Run options with a flag of their own (``--no-record`` for ``record``)."""
+_TYPES = {name: type(getattr(RunConfig(), name)) for name in RUN_FIELDS}
+_NESTED = {"env": "env", "algo_options": "option"}
+"""Nested tables of RunConfig and the repeatable flag that sets their keys."""
+_LABELS = {"reg": "reg", "seed": "seed", "population": "pop", "generations": "gen", "evals": "evals",
+           "retention_every": "ret", "checkpoint_every": "ckpt", "threads": "threads", "episodes_every": "ep"}
+_NOT_OUTCOME = ("record", "episodes_every")
+"""Settings a finished or resumed run may differ in (as ``loop.run`` allows on resume)."""
+STATUSES = ("done", "failed", "pending")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.description = __doc__
+    add_run_options(parser)
+    for action in parser._actions:  # comma-separated values: parsed (and typed) by build_grid
+        if action.dest in RUN_FIELDS and action.const is None:
+            action.type = str
+            action.help += "; comma-separated values make an axis"
+    parser.set_defaults(preset=None)  # None: the file's preset, else paper
+    parser.add_argument("--name", default=None,
+                        help="sweep directory name under --out (default: the --config file's name, "
+                             "else one derived from the grid)")
+    parser.add_argument("--out", default="runs", help="parent folder of sweep directories (default: runs)")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="at most this many trials at once (default: as many as the CPUs allow)")
+    parser.add_argument("--gpus-per-trial", type=float, default=0.0, metavar="G",
+                        help="GPUs reserved per trial, e.g. 0.5 (runs use --device cuda; default 0)")
+    parser.add_argument("--address", default=None, metavar="HOST:PORT",
+                        help="run on an existing Ray cluster (or 'auto'); default: a local Ray for the sweep")
+    parser.add_argument("--retries", type=int, default=1,
+                        help="re-run a trial whose worker died this many times, from its checkpoint (default 1)")
+    parser.add_argument("--overwrite", action="store_true", help="restart every trial, finished or not")
+    parser.add_argument("--dry-run", action="store_true", help="list the trials and their state, run nothing")
+
+
+# ---------------------------------------------------------------------------------------------- grid
+
+@dataclass
+class Trial:
+    name: str
+    values: dict[str, Any]
+    """This trial's value of every axis (keys like ``reg`` or ``algo_options.sigma``)."""
+    config: RunConfig
+    status: str = "pending"
+    error: str = ""
+    wall_time_s: float | None = None
+
+
+@dataclass
+class Grid:
+    axes: dict[str, list[Any]]
+    fixed: dict[str, Any]
+    preset: str
+    name: str | None = None
+    trials: list[Trial] = field(default_factory=list)
+
+
+def _coerce(key: str, value: Any, where: str) -> Any:
+    """A value of run option ``key`` from text (command line) or TOML, typed like RunConfig's field."""
+    kind = _TYPES.get(key)
+    if kind is None:
+        return value
+    try:
+        if isinstance(value, bool) != (kind is bool):
+            raise ValueError
+        if kind is str:
+            if not isinstance(value, str):
+                raise ValueError
+            return value.strip()
+        if kind is int and isinstance(value, float) and not value.is_integer():
+            raise ValueError
+        return kind(value)
+    except ValueError:
+        flag = "--" + key.replace("_", "-")
+        kinds = {int: "an integer", float: "a number", bool: "true or false", str: "text"}
+        raise CliError(f"{flag} value {value!r} {where} is not {kinds[kind]}: "
+                       f"write e.g. {flag} {getattr(RunConfig(), key)!s}") from None
+
+
+def _split_flag(key: str, text: str) -> list[Any]:
+    if key == "schedule":
+        from .schedule import NAMED_SCHEDULES
+
+        items = []
+        for part in (p.strip() for p in text.split(";")):
+            pieces = [p.strip() for p in part.split(",")]
+            items += pieces if all(p in NAMED_SCHEDULES for p in pieces) else [part]
+    else:
+        items = [p.strip() for p in text.split(",")]
+    if any(not item for item in items):
+        raise CliError(f"--{key.replace('_', '-')} {text!r} has an empty value: write e.g. --seed 1,2,3")
+    return [_coerce(key, item, "on the command line") for item in items]
+
+
+def _split_assignment(item: str, what: str) -> tuple[str, list[Any]]:
+    """``KEY=V1,V2`` -> (KEY, [V1, V2]); values typed as ``run`` types them, lists in brackets."""
+    key, sep, text = item.partition("=")
+    if not sep or not key.strip():
+        raise CliError(f"{what} {item!r} is not KEY=VALUE (or KEY=V1,V2 for an axis)")
+    key = key.strip()
+    try:
+        value = ast.literal_eval(text)
+        pieces = [repr(v) for v in value] if isinstance(value, tuple) else [text]
+    except (ValueError, SyntaxError):
+        pieces = text.split(",")
+    return key, [parse_assignments([f"{key}={piece}"], what)[key] for piece in pieces]
+
+
+def _file_layer(path: str) -> tuple[dict[str, list[Any]], dict[str, Any], str | None, str | None]:
+    """A sweep TOML: run options (fixed), a [grid] table of lists (axes), and preset/name."""
+    values = load_toml(path)
+    allowed = set(RUN_FIELDS) | set(_NESTED) | {"grid", "preset", "name"}
+    unknown = sorted(set(values) - allowed)
+    if unknown:
+        raise CliError(f"unknown key(s) {unknown} in {path}: use run options, [env], [algo_options], "
+                       "[grid], preset and name")
+    axes: dict[str, list[Any]] = {}
+    fixed: dict[str, Any] = {}
+
+    def put(key: str, value: Any, in_grid: bool) -> None:
+        name = key.split(".")[-1]
+        if in_grid:
+            listed = value if isinstance(value, list) else [value]
+            if not listed:
+                raise CliError(f"[grid] {key} in {path} is an empty list: give at least one value")
+            typed = [_coerce(name, v, f"in {path}") if "." not in key else v for v in listed]
+            (axes.__setitem__(key, typed) if len(typed) > 1 else fixed.__setitem__(key, typed[0]))
+        else:
+            fixed[key] = _coerce(name, value, f"in {path}") if "." not in key else value
+
+    for key, value in values.items():
+        if key in ("preset", "name"):
+            continue
+        if key == "grid":
+            if not isinstance(value, dict):
+                raise CliError(f"grid in {path} must be a table: write [grid] with lists, e.g. seed = [1, 2]")
+            for gkey, gvalue in value.items():
+                if gkey in _NESTED and isinstance(gvalue, dict):
+                    for sub, subvalue in gvalue.items():
+                        put(f"{gkey}.{sub}", subvalue, True)
+                elif gkey in RUN_FIELDS:
+                    put(gkey, gvalue, True)
+                else:
+                    raise CliError(f"unknown [grid] key {gkey!r} in {path}: use run options, "
+                                   "[grid.env] or [grid.algo_options]")
+        elif key in _NESTED:
+            if not isinstance(value, dict):
+                raise CliError(f"{key} in {path} must be a table: write [{key}]")
+            for sub, subvalue in value.items():
+                put(f"{key}.{sub}", subvalue, False)
+        else:
+            put(key, value, False)
+    return axes, fixed, values.get("preset"), values.get("name")
+
+
+def build_grid(args: argparse.Namespace) -> Grid:
+    """Axes and fixed values from the sweep file and the flags (flags win, key by key), and the
+    trials: every combination, each resolved and validated like a ``run`` (preset < file < flags)."""
+    axes, fixed, preset, name = _file_layer(args.config) if args.config else ({}, {}, None, None)
+    if args.config and name is None:
+        name = Path(args.config).stem
+
+    def put(key: str, values: list[Any]) -> None:
+        axes.pop(key, None)
+        fixed.pop(key, None)
+        if len(values) != len(set(map(repr, values))):
+            raise CliError(f"{key} lists a value twice ({values}): give each value once")
+        (axes.__setitem__(key, values) if len(values) > 1 else fixed.__setitem__(key, values[0]))
+
+    for key in RUN_FIELDS:
+        value = getattr(args, key, None)
+        if value is not None:
+            put(key, _split_flag(key, value) if isinstance(value, str) else [value])
+    for nested, flag in _NESTED.items():
+        for item in getattr(args, flag):
+            sub, values = _split_assignment(item, f"--{flag}")
+            put(f"{nested}.{sub}", values)
+    preset = args.preset or preset or "paper"
+    if preset not in PRESETS:
+        raise CliError(f"unknown preset {preset!r}: choose one of {', '.join(PRESETS)}")
+    if args.gpus_per_trial < 0:
+        raise CliError(f"--gpus-per-trial must be >= 0, got {args.gpus_per_trial}")
+    if args.gpus_per_trial > 0:
+        devices = axes.get("device", [fixed.get("device", "cuda")])
+        if any(not str(d).startswith("cuda") for d in devices):
+            raise CliError("--gpus-per-trial runs trials on cuda: drop --device or set it to cuda")
+        if "device" not in axes:
+            fixed["device"] = "cuda"
+    order = [k for k in RUN_FIELDS if k != "seed"] + sorted(k for k in axes if "." in k) + ["seed"]
+    axes = {k: axes[k] for k in order if k in axes}
+    grid = Grid(axes, fixed, preset, args.name or name)
+    for combo in itertools.product(*axes.values()):
+        values = dict(zip(axes, combo))
+        config = _resolve(preset, {**fixed, **values}, values)
+        grid.trials.append(Trial(trial_name(values, config), values, config))
+    seen: dict[str, Trial] = {}
+    for trial in grid.trials:
+        if trial.name in seen:
+            raise CliError(f"trials {seen[trial.name].values} and {trial.values} are both named {trial.name!r}: "
+                           "give the axis values distinct spellings")
+        seen[trial.name] = trial
+    return grid
+
+
+def _resolve(preset: str, values: dict[str, Any], axis_values: dict[str, Any]) -> RunConfig:
+    """One trial's RunConfig through ``cli.resolve_run_config``, as if its values were flags."""
+    from envs import ConfigError
+
+    args = argparse.Namespace(preset=preset, config=None, env=[], option=[],
+                              **{key: values.get(key) for key in RUN_FIELDS})
+    for key, value in values.items():
+        if "." in key:
+            nested, sub = key.split(".", 1)
+            getattr(args, _NESTED[nested]).append(f"{sub}={value!r}")
+    try:
+        return resolve_run_config(args)
+    except ConfigError as error:
+        where = f" (trial {axis_values})" if axis_values else ""
+        raise CliError(f"{error}{where}") from None
+
+
+def _slug(value: Any) -> str:
+    text = f"{value:g}" if isinstance(value, float) else str(value)
+    return re.sub(r"[^A-Za-z0-9.]+", "-", text).strip("-")
+
+
+def trial_name(values: dict[str, Any], config: RunConfig) -> str:
+    """From the varying axes, e.g. ``neat-reg5-seed13``; a grid without axes: ``cli.default_name``."""
+    if not values:
+        return default_name(config)
+    parts = []
+    for key, value in values.items():
+        if key in ("algo", "schedule", "device"):
+            parts.append(_slug(value))
+        elif key == "record":
+            parts.append("rec" if value else "norec")
+        else:
+            parts.append(_LABELS.get(key, key.split(".")[-1]) + _slug(value))
+    return "-".join(parts)
+
+
+def default_sweep_name(grid: Grid) -> str:
+    blob = json.dumps({"axes": grid.axes, "fixed": grid.fixed, "preset": grid.preset}, sort_keys=True, default=str)
+    return "sweep-" + "-".join(k.split(".")[-1] for k in grid.axes) + "-" + hashlib.sha1(blob.encode()).hexdigest()[:6]
+
+
+# ------------------------------------------------------------------------------------------- trials
+
+def _one_line(error: BaseException) -> str:
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    return f"{type(error).__name__}: {lines[0] if lines else ''}".rstrip(": ")
+
+
+def run_trial(config_values: dict[str, Any], path: str, overwrite: bool) -> dict[str, Any]:
+    """One trial, as ``python -m lifelong_evo run`` would do it (resuming when ``path`` holds a run);
+    never raises: an error comes back as ``{"status": "failed", "error": one line}``."""
+    started = time.monotonic()
+    try:
+        from .loop import run
+        from .rundir import RunDir
+
+        config = RunConfig.from_dict(config_values)
+        run_dir = RunDir(path)
+        resume = not overwrite and run_dir.config.exists()
+        recorder = None
+        if config.record:
+            from .rerun_recorder import RerunRecorder
+
+            recorder = RerunRecorder.for_run(run_dir, config, resume=resume)
+        summary = run(config, run_dir, resume=resume, overwrite=overwrite, recorder=recorder, progress=False)
+        return {"status": "done", "error": "", "wall_time_s": summary["wall_time_s"]}
+    except Exception as error:  # noqa: BLE001 - the driver records it and goes on
+        return {"status": "failed", "error": _one_line(error), "wall_time_s": time.monotonic() - started}
+
+
+def _normalised(values: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in json.loads(json.dumps(values)).items() if k not in _NOT_OUTCOME}
+
+
+def is_complete(summary: dict[str, Any] | None, config: RunConfig) -> bool:
+    """Whether ``summary.json`` covers every phase of the schedule (the run has finished)."""
+    return bool(summary) and len(summary.get("current", [])) == len(config.phases()) and "ACC_pop" in summary
+
+
+def trial_state(path: Path, config: RunConfig) -> tuple[str, str]:
+    """``("done", "")``, ``("resume", "")``, ``("new", "")`` or ``("failed", why)`` for a trial directory."""
+    config_file = path / "config.json"
+    if not config_file.exists():
+        return "new", ""
+    try:
+        stored = read_json(config_file)
+    except RunDirError as error:
+        return "failed", str(error)
+    mine = _normalised(config.to_dict())
+    different = sorted(k for k in mine if stored.get(k) != mine[k])
+    if different:
+        return "failed", (f"{path} was run with other settings ({', '.join(different)} differ): "
+                          "pass --overwrite to restart it, or use another --name")
+    summary_file = path / "summary.json"
+    try:
+        summary = read_json(summary_file) if summary_file.exists() else None
+    except RunDirError:
+        summary = None
+    return ("done", "") if is_complete(summary, config) else ("resume", "")
+
+
+def write_trials_csv(sweep_dir: Path, grid: Grid) -> None:
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(["trial", "status", "error", "wall_time_s", *grid.axes])
+    for t in grid.trials:
+        wall = "" if t.wall_time_s is None else f"{t.wall_time_s:.1f}"
+        writer.writerow([t.name, t.status, t.error, wall, *(t.values[k] for k in grid.axes)])
+    atomic_write_bytes(sweep_dir / "trials.csv", buffer.getvalue().encode())
+
+
+def write_sweep_json(sweep_dir: Path, grid: Grid, ray_settings: dict[str, Any]) -> None:
+    write_json(sweep_dir / "sweep.json", {
+        "name": grid.name, "preset": grid.preset, "grid": grid.axes, "fixed": grid.fixed, "ray": ray_settings,
+        "trials": [{"trial": t.name, "path": t.name, "values": t.values, "config": t.config.to_dict()}
+                   for t in grid.trials]})
+
+
+# ------------------------------------------------------------------------------- model-specific lambda
+
+def selection_score(summary: dict[str, Any]) -> float | None:
+    """``C(phase 1) + R_top(task of phase 0 at the end of phase 1)``; None before phase 1 ended."""
+    current = summary.get("current") or []
+    phases = summary.get("phases") or []
+    if len(current) < 2 or len(phases) < 2:
+        return None
+    if summary.get("R_top"):
+        retained = summary["R_top"][1][0]
+    else:
+        rows = [r for r in summary.get("forgetting", []) if r["at_end_of"] == 1 and r["task"] == phases[0]]
+        if not rows:
+            return None
+        retained = rows[0]["R_top"]
+    if current[1] is None or retained is None:
+        return None
+    return float(current[1]) + float(retained)
+
+
+_SAME_CONFIGURATION_IGNORES = ("seed", "reg", "versions", "name", "record", "threads", "device",
+                               "checkpoint_every", "episodes_every")
+"""Keys left out when grouping runs for the m.s. lambda: the seed, lambda, and what does not change
+results (as ``plots.IGNORED_CONFIG_KEYS``, by which ``compare`` groups)."""
+
+
+def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]) -> list[dict[str, Any]]:
+    """The model-specific lambda: ``runs`` are (config.json dict, summary.json dict, tag) triples;
+    for each configuration without lambda that was run with several lambdas, and each of its seeds,
+    the run whose lambda maximises ``selection_score`` (ties: the smaller lambda).
+
+    Returns one dict per such configuration: ``config`` (the config of its first chosen run) and
+    ``choices``, one per seed in ascending order: ``seed``, ``reg``, ``score``, ``tag``."""
+    groups: dict[str, dict[str, Any]] = {}
+    for config, summary, tag in runs:
+        rest = {k: v for k, v in config.items() if k not in _SAME_CONFIGURATION_IGNORES}
+        group = groups.setdefault(json.dumps(rest, sort_keys=True, default=str),
+                                  {"regs": set(), "by_seed": {}, "configs": {}})
+        group["regs"].add(float(config["reg"]))
+        group["configs"][tag] = config
+        score = selection_score(summary)
+        if score is not None and math.isfinite(score):
+            group["by_seed"].setdefault(config["seed"], []).append((score, float(config["reg"]), tag))
+    result = []
+    for group in groups.values():
+        if len(group["regs"]) < 2 or not group["by_seed"]:
+            continue
+        choices = []
+        for seed in sorted(group["by_seed"], key=str):
+            score, reg, tag = max(group["by_seed"][seed], key=lambda c: (c[0], -c[1]))
+            choices.append({"seed": seed, "reg": reg, "score": score, "tag": tag})
+        result.append({"config": group["configs"][choices[0]["tag"]], "choices": choices})
+    return result
+
+
+CRITERION = "C(phase 1) + R_top(task of phase 0 at end of phase 1)"
+
+
+def model_specific_label(config: dict[str, Any], all_configs: list[dict[str, Any]]) -> str:
+    """``compare``'s label of the configuration with ``reg=m.s.``, e.g. ``neat reg=m.s. red-green-red``."""
+    from .plots import describe_config
+
+    return re.sub(r"reg=\S+", "reg=m.s.", describe_config(config, all_configs), count=1)
+
+
+def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any, dict[str, Any]],
+                          all_configs: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], str]:
+    """``compare``-style rows (one per m.s. configuration and metric, the chosen lambdas in ``reg``)
+    and markdown: an overview line per m.s. configuration with the lambda per seed, then its C per
+    phase and R/F table; means over seeds with their 95% bootstrap interval (``compare``'s)."""
+    from .compare import bootstrap_ci, run_metrics
+
+    def fmt(values: list[float]) -> str:
+        mean, low, high = bootstrap_ci(values)
+        return "-" if math.isnan(mean) else f"{mean:.2f}" if len(values) == 1 else f"{mean:.2f} [{low:.2f}, {high:.2f}]"
+
+    rows: list[dict[str, Any]] = []
+    transfer = ("ACC_pop", "BWT_pop", "FWT_pop", "ACC_top", "BWT_top", "FWT_top")
+    overview = ["| configuration | n seeds | lambda per seed | " + CRITERION + " | " + " | ".join(transfer) + " |",
+                "|" + "---|" * (4 + len(transfer))]
+    sections = []
+    for selection in selections:
+        config = selection["config"]
+        label = model_specific_label(config, all_configs)
+        lambdas = ", ".join(f"{c['seed']}: {c['reg']:g}" for c in selection["choices"])
+        per_metric: dict[str, list[float]] = {CRITERION: [c["score"] for c in selection["choices"]]}
+        for choice in selection["choices"]:
+            for _, name, value in run_metrics(summaries[choice["tag"]]):
+                if value is not None and not (isinstance(value, float) and math.isnan(value)):
+                    per_metric.setdefault(name, []).append(value)
+        for name, values in per_metric.items():
+            mean, low, high = bootstrap_ci(values)
+            rows.append({"configuration": label, "algo": config.get("algo"),
+                         "reg": "m.s. " + " ".join(f"{c['reg']:g}" for c in selection["choices"]),
+                         "schedule": config.get("schedule"), "metric": name, "n": len(values),
+                         "mean": mean, "ci_low": low, "ci_high": high, "values": values})
+        overview.append(f"| {label} | {len(selection['choices'])} | {lambdas} | {fmt(per_metric[CRITERION])} | "
+                        + " | ".join(fmt(per_metric.get(k, [])) for k in transfer) + " |")
+        lines = [f"### {label}", "", f"lambda per seed: {lambdas}", "", "| phase | C (current) |", "|---|---|"]
+        lines += [f"| {name[2:]} | {fmt(values)} |" for name, values in per_metric.items() if name.startswith("C phase")]
+        wheres = [name[len("R_pop "):] for name in per_metric if name.startswith("R_pop ")]
+        if wheres:
+            lines += ["", "| task at end of phase | R_pop | F_pop | R_top | F_top |", "|---|---|---|---|---|"]
+            lines += [f"| {where} | " + " | ".join(fmt(per_metric.get(f"{m} {where}", []))
+                                                 for m in ("R_pop", "F_pop", "R_top", "F_top")) + " |"
+                      for where in wheres]
+        sections.append("\n".join(lines))
+    markdown = "\n".join([
+        "## Model-specific lambda (m.s. reg)", "",
+        f"Per configuration and seed, the lambda of the sweep maximising {CRITERION} (current performance "
+        "plus the top individual's retention at the end of the second task; ties: the smaller lambda), "
+        "from summary.json. Mean over seeds [95% bootstrap interval] of the chosen runs.", "",
+        *overview, "", "\n\n".join(sections)])
+    return rows, markdown
+
+
+def aggregate(sweep_dir: Path, grid: Grid) -> str:
+    """``compare`` over the finished trials plus the m.s. reg rows: written to comparison.md and
+    comparison.csv (the m.s. part also to model_specific_lambda.md/.json); returns the markdown."""
+    from .compare import compare_table, write_csv
+
+    done = [t for t in grid.trials if t.status == "done"]
+    if not done:
+        return "no finished trial: nothing to compare"
+    rows, markdown = compare_table([sweep_dir / t.name for t in done])
+    configs = {t.name: read_json(sweep_dir / t.name / "config.json") for t in done}
+    summaries = {t.name: read_json(sweep_dir / t.name / "summary.json") for t in done}
+    selections = select_model_specific([(configs[t.name], summaries[t.name], t.name) for t in done])
+    if selections:
+        ms_rows, ms_markdown = model_specific_report(selections, summaries, list(configs.values()))
+        rows += ms_rows
+        markdown += "\n" + ms_markdown
+        (sweep_dir / "model_specific_lambda.md").write_text(ms_markdown + "\n")
+        write_json(sweep_dir / "model_specific_lambda.json",
+                   [{"configuration": model_specific_label(s["config"], list(configs.values())),
+                     "criterion": CRITERION, "choices": s["choices"]} for s in selections])
+    atomic_write_bytes(sweep_dir / "comparison.md", (markdown + "\n").encode())
+    write_csv(rows, sweep_dir / "comparison.csv")
+    return markdown
+
+
+# --------------------------------------------------------------------------------------------- driver
+
+def _start_ray(args: argparse.Namespace):
+    import ray
+
+    if ray.is_initialized():
+        return ray, False
+    if args.address:
+        import algorithms
+        import envs
+
+        import lifelong_evo
+
+        modules = [str(Path(m.__file__).parent) for m in (lifelong_evo, algorithms, envs)]
+        ray.init(address=args.address, runtime_env={"py_modules": modules, "excludes": ["__pycache__"]})
+    else:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+        ray.init(num_cpus=cores, include_dashboard=False)
+    return ray, True
+
+
+def _print(text: str) -> None:
+    print(text, flush=True)
+
+
+def main(args: argparse.Namespace) -> int:
+    grid = build_grid(args)
+    grid.name = grid.name or default_sweep_name(grid)
+    if args.workers is not None and args.workers < 1:
+        raise CliError(f"--workers must be >= 1, got {args.workers}")
+    sweep_dir = (Path(args.out) / grid.name).resolve()
+    to_run: list[Trial] = []
+    for trial in grid.trials:
+        state, why = ("new", "") if args.overwrite else trial_state(sweep_dir / trial.name, trial.config)
+        if state == "done":
+            trial.status = "done"
+            trial.wall_time_s = read_json(sweep_dir / trial.name / "summary.json")["wall_time_s"]
+        elif state == "failed":
+            trial.status, trial.error = "failed", why
+        else:
+            to_run.append(trial)
+    axes = ", ".join(f"{k} ({len(v)})" for k, v in grid.axes.items()) or "no axes"
+    _print(f"sweep {grid.name}: {len(grid.trials)} trials over {axes}, preset {grid.preset}; "
+           f"{len(to_run)} to run -> {sweep_dir}")
+    for trial in grid.trials:
+        if trial.status == "done":
+            _print(f"skipped {trial.name} (done)")
+        elif trial.status == "failed":
+            _print(f"failed  {trial.name}: {trial.error}")
+    if args.dry_run:
+        for trial in to_run:
+            _print(f"would run {trial.name}")
+        return 0
+    sweep_dir.mkdir(parents=True, exist_ok=True)
+    ray_settings = {"address": args.address or "local", "workers": args.workers,
+                    "gpus_per_trial": args.gpus_per_trial, "retries": args.retries}
+    write_sweep_json(sweep_dir, grid, ray_settings)
+    write_trials_csv(sweep_dir, grid)
+    interrupted = False
+    if to_run:
+        interrupted = _run_trials(args, grid, to_run, sweep_dir)
+    write_trials_csv(sweep_dir, grid)
+    if interrupted:
+        print(f"\ninterrupted: finished trials and checkpoints are kept in {sweep_dir}; "
+              "run the same command again to continue", file=sys.stderr)
+        return 130
+    table = aggregate(sweep_dir, grid)
+    counts = {s: sum(t.status == s for t in grid.trials) for s in STATUSES}
+    _print("")
+    _print(table)
+    _print(f"\n{counts['done']} done, {counts['failed']} failed; trials.csv, sweep.json, comparison.md/.csv in {sweep_dir}")
+    return 1 if counts["failed"] else 0
+
+
+def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep_dir: Path) -> bool:
+    """Run ``to_run`` on Ray, recording each result as it comes; True when interrupted (Ctrl-C)."""
+    ray, started = _start_ray(args)
+    in_flight: dict[Any, Trial] = {}
+    try:
+        resources = ray.cluster_resources()
+        if args.gpus_per_trial > resources.get("GPU", 0):
+            raise CliError(f"the Ray cluster has {resources.get('GPU', 0):g} GPU(s), a trial asks for "
+                           f"{args.gpus_per_trial:g}: drop --gpus-per-trial or add GPU nodes")
+        widest = max(t.config.threads for t in to_run)
+        if widest > resources.get("CPU", 0):
+            raise CliError(f"the Ray cluster has {resources.get('CPU', 0):g} CPUs, a trial asks for {widest} "
+                           "(--threads): lower --threads")
+        remote = ray.remote(run_trial)
+        limit = args.workers or len(to_run)
+        queue = list(to_run)
+        finished = len(grid.trials) - len(to_run)
+        try:
+            while queue or in_flight:
+                while queue and len(in_flight) < limit:
+                    trial = queue.pop(0)
+                    ref = remote.options(num_cpus=trial.config.threads, num_gpus=args.gpus_per_trial,
+                                         max_retries=args.retries, name=f"trial:{trial.name}").remote(
+                        trial.config.to_dict(), str(sweep_dir / trial.name), args.overwrite)
+                    in_flight[ref] = trial
+                ready, _ = ray.wait(list(in_flight), num_returns=1, timeout=1.0)
+                for ref in ready:
+                    trial = in_flight.pop(ref)
+                    try:
+                        result = ray.get(ref)
+                    except ray.exceptions.RayError as error:  # worker killed, out of memory, cancelled
+                        result = {"status": "failed", "error": _one_line(error), "wall_time_s": None}
+                    trial.status, trial.error, trial.wall_time_s = result["status"], result["error"], result["wall_time_s"]
+                    finished += 1
+                    wall = "" if trial.wall_time_s is None else f" ({trial.wall_time_s:.0f} s)"
+                    line = f"[{finished}/{len(grid.trials)}] {trial.status:<6} {trial.name}{wall}"
+                    _print(line + (f": {trial.error}" if trial.error else ""))
+                    write_trials_csv(sweep_dir, grid)
+        except KeyboardInterrupt:
+            for ref in in_flight:
+                ray.cancel(ref, force=True)
+            return True
+        return False
+    finally:
+        if started:
+            ray.shutdown()

@@ -1,0 +1,188 @@
+"""The real command line, end to end, at the smoke size: files, metric consistency, errors,
+determinism and resume after SIGKILL."""
+from __future__ import annotations
+
+import csv
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from lifelong_evo.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def _num(value: str) -> float | None:
+    return float(value) if value != "" else None
+
+
+@pytest.fixture(scope="module")
+def smoke_runs(tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs")
+    for algo, extra in (("neat", ["--reg", "2"]), ("openai-es", ["--reg", "1"])):
+        assert main([*extra, "--algo", algo, "--preset", "smoke", "--out", str(out), "--name", algo,
+                     "--no-record", "--quiet"]) == 0
+    return out
+
+
+@pytest.mark.parametrize("algo", ["neat", "openai-es"])
+def test_run_directory_contract(smoke_runs, algo):
+    run = smoke_runs / algo
+    for name in ("config.json", "metrics.csv", "summary.json", "controllers/final-top.json"):
+        assert (run / name).is_file(), name
+    assert sorted(run.glob("checkpoints/generation-*.pt"))
+    config = json.loads((run / "config.json").read_text())
+    assert config["algo"] == algo and config["versions"]["torch"] and config["versions"]["neat-python"]
+    assert [p.name for p in sorted((run / "controllers").glob("task*.json"))] == \
+        ["task0-red-top.json", "task1-green-top.json", "task2-red-top.json"]
+    exported = json.loads((run / "controllers/final-top.json").read_text())
+    assert exported == json.loads((run / "controllers/task2-red-top.json").read_text())
+
+
+@pytest.mark.parametrize("algo", ["neat", "openai-es"])
+def test_metrics_are_consistent(smoke_runs, algo):
+    run = smoke_runs / algo
+    rows = _rows(run / "metrics.csv")
+    summary = json.loads((run / "summary.json").read_text())
+    assert [int(r["generation"]) for r in rows] == list(range(9))
+    assert [r["task"] for r in rows] == ["red"] * 3 + ["green"] * 3 + ["red"] * 3
+    for row in rows:
+        best, mean = float(row["best"]), float(row["mean"])
+        assert float(row["median"]) <= best and mean <= best
+        # the regulariser only lowers fitness, and only after the first drift
+        if int(row["task_index"]) == 0:
+            assert row["reg_best"] == row["best"]
+        else:
+            assert float(row["reg_mean"]) <= mean
+    ends = [rows[2], rows[5], rows[8]]
+    # C is the best fitness of the task's last generation
+    assert summary["current"] == [float(r["best"]) for r in ends]
+    # retention is measured at task ends on every earlier task (red during green, green during red)
+    assert ends[1]["retention_pop_red"] != "" and ends[2]["retention_pop_green"] != ""
+    # top-individual retention can never beat the population's
+    for row in rows:
+        for task in ("red", "green"):
+            pop, top = _num(row[f"retention_pop_{task}"]), _num(row[f"retention_top_{task}"])
+            if pop is not None:
+                assert top <= pop
+    # F = C at the task end minus R at the next task end
+    forgetting = {(f["at_end_of"], f["task"]): f for f in summary["forgetting"]}
+    red_at_green_end = forgetting[(1, "red")]
+    assert red_at_green_end["R_pop"] == float(ends[1]["retention_pop_red"])
+    assert red_at_green_end["F_pop"] == pytest.approx(float(ends[0]["best"]) - float(ends[1]["retention_pop_red"]))
+    assert red_at_green_end["F_top"] == pytest.approx(float(ends[0]["best"]) - float(ends[1]["retention_top_red"]))
+    green_at_red_end = forgetting[(2, "green")]
+    assert green_at_red_end["F_pop"] == pytest.approx(float(ends[1]["best"]) - float(ends[2]["retention_pop_green"]))
+    # the R matrix diagonal is C; BWT follows from it
+    matrix = summary["R_pop"]
+    assert [matrix[i][i] for i in range(3)] == summary["current"]
+    assert summary["BWT_pop"] == pytest.approx(sum(matrix[2][j] - matrix[j][j] for j in range(2)) / 2)
+    if algo == "openai-es":
+        assert all(r["centre"] != "" for r in rows)
+    else:
+        species = _rows(run / "species.csv")
+        for row in rows:
+            alive = [s for s in species if s["generation"] == row["generation"]]
+            assert len(alive) == int(row["species"])
+            assert sum(int(s["size"]) for s in alive) == 12
+
+
+def test_same_seed_same_numbers(smoke_runs, tmp_path):
+    assert main(["--algo", "neat", "--reg", "2", "--preset", "smoke", "--out", str(tmp_path), "--name", "again",
+                 "--no-record", "--quiet"]) == 0
+    assert (tmp_path / "again/metrics.csv").read_text() == (smoke_runs / "neat/metrics.csv").read_text()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--algo", "nope"], "unknown algorithm 'nope'"),
+    (["--schedule", "red,pink"], "unknown task 'pink'"),
+    (["--schedule", "red:x"], "bad generation count"),
+    (["--generations", "0"], "--generations must be >= 1"),
+    (["--env", "n_agent=3"], "unknown environment option"),
+    (["--env", "colors=[3,5]"], "colors must be the contiguous ids"),
+    (["--reg", "-1"], "--reg must be >= 0"),
+    (["--preset", "smoke", "--config", "/no/such.toml"], "does not exist"),
+])
+def test_bad_input_is_one_clear_line(argv, message, tmp_path, capsys):
+    assert main([*argv, "--out", str(tmp_path), "--quiet", "--no-record"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and message in err and "\n" not in err
+    assert not any(tmp_path.iterdir()), "nothing is written for bad input"
+
+
+def test_config_typo_in_toml(tmp_path, capsys):
+    config = tmp_path / "run.toml"
+    config.write_text('algo = "neat"\npopulaton = 20\n')
+    assert main(["--config", str(config), "--out", str(tmp_path), "--no-record"]) == 2
+    assert "unknown option(s) ['populaton'] in the config file" in capsys.readouterr().err
+
+
+def test_existing_run_needs_resume_or_overwrite(smoke_runs, capsys):
+    before = (smoke_runs / "neat/metrics.csv").read_text()
+    assert main(["--algo", "neat", "--reg", "2", "--preset", "smoke", "--out", str(smoke_runs), "--name", "neat",
+                 "--no-record"]) == 2
+    assert "already exists: pass --resume" in capsys.readouterr().err
+    assert (smoke_runs / "neat/metrics.csv").read_text() == before
+
+
+def test_corrupt_checkpoint_is_refused(smoke_runs, tmp_path, capsys):
+    import shutil
+
+    run = tmp_path / "copy"
+    shutil.copytree(smoke_runs / "neat", run)
+    latest = sorted(run.glob("checkpoints/*.pt"))[-1]
+    data = bytearray(latest.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    latest.write_bytes(bytes(data))
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record"]) == 2
+    err = capsys.readouterr().err
+    assert "corrupt or was not written by this machine" in err
+
+
+def test_resume_refuses_changed_settings(smoke_runs, capsys):
+    assert main(["--resume", "--out", str(smoke_runs), "--name", "neat", "--population", "50"]) == 2
+    assert "stored settings" in capsys.readouterr().err
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "lifelong_evo", *args]
+
+
+@pytest.mark.parametrize("algo", ["neat", "openai-es"])
+def test_resume_after_sigkill_gives_identical_metrics(tmp_path, algo):
+    """Kill a run with SIGKILL at a random moment, resume it, compare with an uninterrupted run."""
+    common = ["--algo", algo, "--reg", "1", "--preset", "smoke", "--generations", "8", "--checkpoint-every", "3",
+              "--out", str(tmp_path), "--no-record", "--quiet"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    subprocess.run(_cli(*common, "--name", "whole"), check=True, env=env, cwd=ROOT)
+    whole = (tmp_path / "whole/metrics.csv").read_text()
+
+    killed = subprocess.Popen(_cli(*common, "--name", "killed"), env=env, cwd=ROOT)
+    metrics = tmp_path / "killed/metrics.csv"
+    deadline = time.monotonic() + 120
+    rng = random.Random(0)
+    target_rows = rng.randint(6, 16)  # somewhere in the middle of the 24 generations
+    while time.monotonic() < deadline and killed.poll() is None:
+        if metrics.exists() and metrics.read_text().count("\n") > target_rows:
+            break
+        time.sleep(0.02)
+    killed.send_signal(signal.SIGKILL)
+    killed.wait()
+    assert killed.returncode == -signal.SIGKILL, "the run finished before it could be killed"
+    assert sorted((tmp_path / "killed/checkpoints").glob("*.pt")), "killed before the first checkpoint"
+
+    subprocess.run(_cli("--resume", "--out", str(tmp_path), "--name", "killed", "--quiet", "--no-record"),
+                   check=True, env=env, cwd=ROOT)
+    assert metrics.read_text() == whole
