@@ -179,7 +179,8 @@ class _BoxKeys:
         """The smallest key above ``previous``: keys <= previous wrap to the top under the
         sign flip, so one ``amin`` suffices (no masked copy)."""
         shifted = (keys - (previous + 1)) ^ torch.iinfo(torch.int32).min
-        return (shifted.amin(dim=0) ^ torch.iinfo(torch.int32).min) + previous + 1
+        found = (shifted.amin(dim=0) ^ torch.iinfo(torch.int32).min) + previous + 1
+        return torch.where(found > previous, found, torch.iinfo(torch.int32).max)  # none left: absent
 
 
 def _float_order_keys(values: torch.Tensor, index_bits: int) -> torch.Tensor:
@@ -218,6 +219,7 @@ class ForagingEnv:
         self._colour_ids = torch.arange(3, 3 + c.n_colors, device=self.device)[:, None]
         n_others = c.n_boxes + (c.n_agents if c.see_other_agents else 0)
         self._box_keys = _BoxKeys(n_others, cap=2 * max(c.sensor_range, c.sensitivity))
+        self._slot_bits = (4 + c.n_neighbors - 1).bit_length()  # walls + nearest others, merged
         self._arena: _Arena | None = None
 
     # ------------------------------------------------------------------ tasks and reset
@@ -399,9 +401,10 @@ class ForagingEnv:
         carrying = torch.where(dropping, -1, carrying)
         # 4. sensing; a box dropped this step stays absent until the next one
         observations = self._observe(ax, ay, heading, carrying, dx, dy, dist, keys, present, a.color, a.target)
-        respawn = respawn_cells(a.respawn_key, a.steps, c.n_agents, int(c.size))            # (A, B, 2)
         bx, by = a.bx, a.by
+        respawn = torch.full((c.n_agents, a.ax.shape[1], 2), -1, dtype=torch.long, device=self.device)
         if c.repositioning and dropping.any():
+            respawn = respawn_cells(a.respawn_key, a.steps, c.n_agents, int(c.size))         # (A, B, 2)
             bx, by, present = self._respawn(dropped, respawn, bx, by, present)
         # 5. termination
         retrieved = a.retrieved + drop_correct.sum(dim=0)
@@ -483,7 +486,7 @@ class ForagingEnv:
             adx, ady, adist = self._box_offsets(ax, ay, ax, ay)                            # (A other, A, B)
             is_self = torch.eye(A, dtype=torch.bool, device=self.device)[..., None]
             dx, dy, dist = torch.cat((adx, dx)), torch.cat((ady, dy)), torch.cat((adist, dist))
-            keys = self._box_keys.keys(dist, torch.cat((is_self.expand(A, A, 1), ~present[:, None].expand(-1, A, -1))))
+            keys = self._box_keys.keys(dist, torch.cat((is_self.expand(A, A, B), ~present[:, None].expand(-1, A, -1))))
             kinds = torch.cat((torch.full((A, A, B), AGENT, device=self.device, dtype=torch.long), kinds))
         # the nearest n sensed entities other than walls
         best = [keys.amin(dim=0)]
@@ -498,12 +501,12 @@ class ForagingEnv:
         unseen = torch.tensor(_UNSEEN, dtype=self.dtype, device=self.device)
         cand_dist = torch.cat((torch.where(wall < rng, wall, unseen), torch.where(o_seen, o_dist, unseen)))
         # + 2 keeps the (possibly negative, >= -1) wall distances positive for the bit keys
-        cand_keys = _float_order_keys(cand_dist.double() + 2.0, 3)
+        cand_keys = _float_order_keys(cand_dist.double() + 2.0, self._slot_bits)
         slots = []
         for _ in range(n):
             slots.append(cand_keys.amin(dim=0))
             cand_keys = cand_keys.masked_fill(cand_keys == slots[-1], _TAKEN)
-        pick = (torch.stack(slots).view(torch.int64) & 7)                                  # (n, A, B) in 0..3+n
+        pick = torch.stack(slots).view(torch.int64) & ((1 << self._slot_bits) - 1)         # (n, A, B) in 0..3+n
         s_dist = cand_dist.gather(0, pick)
         seen = s_dist < _UNSEEN
         is_wall = pick < 4

@@ -1,0 +1,72 @@
+"""Plug your own optimiser into the ask/tell interface and run the paper's protocol with it.
+
+    python examples/custom_optimizer.py --preset smoke
+
+A (1, lambda) hill climber on the project's MLP controller: each generation samples
+``population_size`` perturbations of the incumbent (the incumbent itself is controller 0) and
+keeps the best. Registering it makes every verb (run, sweep, compare) accept ``--algo hill-climber``.
+"""
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+import torch
+
+from algorithms import REGISTRY, GenerationReport, Optimizer
+from algorithms.mlp import MLPPolicy, layer_sizes_for, n_parameters
+from lifelong_evo.cli import main
+
+
+class HillClimber(Optimizer):
+    name = "hill-climber"
+    has_regularizer = False
+
+    def __init__(self, *, obs_dim: int, population_size: int, seed: int, regularization: float = 0.0,
+                 device: str = "cpu", sigma: float = 0.1, hidden=(16,)):
+        self.layer_sizes = layer_sizes_for(obs_dim, tuple(hidden))
+        self.sigma = sigma
+        self.device = device
+        self.generator = torch.Generator().manual_seed(seed)
+        self.incumbent = torch.zeros(n_parameters(self.layer_sizes))
+        self.size = population_size
+        self.samples: torch.Tensor | None = None
+
+    @property
+    def population_size(self) -> int:
+        return self.size
+
+    def ask(self) -> MLPPolicy:
+        if self.samples is None:
+            noise = torch.randn(self.size, self.incumbent.numel(), generator=self.generator) * self.sigma
+            noise[0] = 0.0
+            self.samples = self.incumbent + noise
+        return MLPPolicy(self.samples.to(self.device), self.layer_sizes)
+
+    def regularise(self, fitness: torch.Tensor) -> torch.Tensor:
+        return fitness
+
+    def tell(self, fitness: torch.Tensor, selection_fitness: torch.Tensor) -> GenerationReport:
+        self.incumbent = self.samples[int(selection_fitness.argmax())].clone()
+        self.samples = None
+        return GenerationReport(extra={"sigma": self.sigma})
+
+    def end_task(self) -> None:
+        pass
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"incumbent": self.incumbent, "generator": self.generator.get_state(), "samples": self.samples}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.incumbent = state["incumbent"]
+        self.generator.set_state(state["generator"])
+        self.samples = state["samples"]
+
+    def export(self, index: int) -> dict[str, Any]:
+        return {"layer_sizes": list(self.layer_sizes), "parameters": self.samples[index].tolist()}
+
+
+REGISTRY[HillClimber.name] = HillClimber
+
+if __name__ == "__main__":
+    sys.exit(main(["--algo", HillClimber.name, *sys.argv[1:]]))

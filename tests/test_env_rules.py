@@ -1,0 +1,655 @@
+"""One small hand-built scenario per rule of ../shared/docs/foraging-spec.md.
+
+Each test builds an explicit state (mostly one environment), steps the batched environment with
+known wheel speeds and reads the observation back through ``decode`` (the spec's layout).
+"""
+from __future__ import annotations
+
+import math
+import random
+
+import pytest
+import torch
+
+from envs import TASKS, ForagingConfig, ForagingEnv, Task, outputs_to_wheels
+from envs.foraging import hash31, respawn_cells
+
+try:
+    from oracle import A, OracleState, batched_state_from, hash31 as py_hash31, respawn_cell
+except ImportError:  # tests/ imported as a package
+    from tests.oracle import A, OracleState, batched_state_from, hash31 as py_hash31, respawn_cell
+
+F64 = torch.float64
+# inverse of the spec's kinematic matrix: wheels for a wanted (vx, vy, r)
+A_INV = ((-0.8660254100688773, 0.5000000043301269, 1.0),
+         (0.0, -1.0, 1.0),
+         (0.8660254100688773, -0.500000004330127, 1.0))
+
+
+def wheels_for(vx, vy, r=0.0):
+    return [A_INV[j][0] * vx + A_INV[j][1] * vy + A_INV[j][2] * r for j in range(3)]
+
+RED, BLUE, GREEN, YELLOW = 3, 4, 5, 6
+WALL, AGENT = 1, 2
+
+
+# ---------------------------------------------------------------------------- helpers
+N_FILLED = 12
+
+
+def make_state(agents, boxes, task=TASKS["red"], steps=0, retrieved=0, done=False, key=12345,
+               fill=True) -> OracleState:
+    """agents: (x, y[, heading[, carrying]]); boxes: (x, y, colour[, present]).
+
+    ``fill``: pad with filler boxes (higher indices, stacked on the integer cell farthest from
+    every agent, never sensed nor reached in these short scenarios) up to ``N_FILLED`` boxes, so
+    that each scenario tests its own rule and not the separate few-boxes case (see
+    ``test_padding_with_fewer_boxes_than_slots``).
+    """
+    agents = [tuple(a) + (180.0, -1)[len(a) - 2:] for a in agents]
+    boxes = [tuple(b) + (True,)[len(b) - 3:] for b in boxes]
+    if fill and len(boxes) < N_FILLED:
+        cells = [(x, y) for x in range(21) for y in range(21)]
+        far = max(cells, key=lambda cell: min(math.hypot(cell[0] - a[0], cell[1] - a[1]) for a in agents))
+        assert min(math.hypot(far[0] - a[0], far[1] - a[1]) for a in agents) > 5.0
+        boxes += [(far[0], far[1], task.season[-1], True)] * (N_FILLED - len(boxes))
+    present = [bool(b[3]) for b in boxes]
+    for a in agents:
+        if a[3] >= 0:
+            present[a[3]] = False
+    return OracleState(ax=[float(a[0]) for a in agents], ay=[float(a[1]) for a in agents],
+                       heading=[float(a[2]) for a in agents], carrying=[int(a[3]) for a in agents],
+                       bx=[float(b[0]) for b in boxes], by=[float(b[1]) for b in boxes],
+                       color=[int(b[2]) for b in boxes], present=present,
+                       target=task.target, season=tuple(task.season), steps=steps, retrieved=retrieved,
+                       done=done, respawn_key=key)
+
+
+def make_env(agents, boxes, task=TASKS["red"], dtype=F64, steps=0, retrieved=0, done=False, key=12345, **options):
+    """A one-environment batch holding exactly this state; returns (env, observations)."""
+    state = make_state(agents, boxes, task, steps, retrieved, done, key, fill=options.pop("fill", True))
+    config = ForagingConfig(n_agents=len(agents), n_boxes=len(state.bx), **options)
+    env = ForagingEnv(config, batch_size=1, device="cpu", dtype=dtype)
+    obs = env.reset(state=batched_state_from([state], config.n_colors, dtype=dtype))
+    return env, obs
+
+
+def step(env, wheels=None):
+    """Step a batch with per-agent wheel speeds (default: all zero, nobody moves)."""
+    c = env.config
+    w = torch.zeros(env.batch_size, c.n_agents, 3, dtype=env.dtype)
+    if wheels is not None:
+        w[:] = torch.as_tensor(wheels, dtype=env.dtype)
+    return env.step(w)
+
+
+def decode(row, config):
+    """Split one agent's observation by the spec's layout."""
+    row = [float(v) for v in row]
+    c, n = config.n_colors, config.n_neighbors
+    t = c + 3
+    types = []
+    for j in range(n):
+        one = row[j * t:(j + 1) * t]
+        assert sorted(one) == [0.0] * (t - 1) + [1.0], f"slot {j} type is not one-hot: {one}"
+        types.append(one.index(1.0))
+    o = t * n
+    dist = [d * config.sensor_range for d in row[o:o + n]]
+    sin, cos = row[o + n:o + 2 * n], row[o + 2 * n:o + 3 * n]
+    o += 3 * n
+    heading = row[o:o + 2]
+    carried = row[o + 2:o + 2 + c + 1]
+    target = row[o + 3 + c:o + 3 + 2 * c]
+    assert len(row) == o + 3 + 2 * c == config.obs_dim
+    return {"slots": list(zip(types, dist, sin, cos)), "types": types, "dist": dist, "sin": sin, "cos": cos,
+            "heading": heading, "carried": carried, "target": target}
+
+
+def approx(a, b, tol=1e-9):
+    return all(abs(x - y) <= tol for x, y in zip(a, b)) and len(a) == len(b)
+
+
+# ---------------------------------------------------------------------------- sensing
+def test_walls_strictly_inside_range_boxes_inclusive():
+    # agent 0: top wall at exactly 4 (not sensed), box at exactly 4 (sensed)
+    # agent 1: top wall at 3.999 (sensed); bottom wall at exactly 4 for agent 2 (size - x - 1 = 4)
+    env, obs = make_env([(4.0, 10.0), (3.999, 3.0), (15.0, 10.0), (15.01, 10.0)],
+                        [(8.0, 10.0, RED), (19.0, 12.0, BLUE)])
+    c = env.config
+    d0 = decode(obs[0, 0], c)
+    assert d0["types"] == [RED, 0, 0], f"wall at exactly sensor_range must be excluded, box at it included: {d0['slots']}"
+    assert d0["dist"][0] == pytest.approx(4.0)
+    d1 = decode(obs[0, 1], c)
+    assert d1["types"][:2] == [WALL, WALL] and d1["dist"][:2] == pytest.approx([3.0, 3.999])
+    d2 = decode(obs[0, 2], c)
+    assert d2["types"] == [0, 0, 0], f"bottom wall at distance size - x - 1 = 4 must not be sensed: {d2['slots']}"
+    d3 = decode(obs[0, 3], c)
+    assert d3["types"][0] == WALL and d3["dist"][0] == pytest.approx(3.99)
+
+
+def test_bottom_and_right_walls_have_the_minus_one():
+    env, obs = make_env([(19.5, 19.8), (20.0, 0.0), (18.5, 10.0)], [(8.0, 8.0, RED)])
+    c = env.config
+    d = decode(obs[0, 0], c)
+    # right: 20 - 19.8 - 1 = -0.8, bottom: 20 - 19.5 - 1 = -0.5; both negative, sorted first
+    assert d["types"] == [WALL, WALL, 0]
+    assert d["dist"][:2] == pytest.approx([-0.8, -0.5]), "bottom/right wall distance must be size - coord - 1"
+    assert approx(d["sin"][:2], [-1.0, 0.0], 1e-12) and approx(d["cos"][:2], [0.0, -1.0], 1e-12), \
+        "right wall reads direction 270, bottom 180"
+    d = decode(obs[0, 1], c)  # on the bottom-left corner: bottom -1, left 0
+    assert d["types"] == [WALL, WALL, 0] and d["dist"][:2] == pytest.approx([-1.0, 0.0])
+    assert approx(d["sin"][:2], [0.0, 1.0], 1e-12) and approx(d["cos"][:2], [-1.0, 0.0], 1e-12)
+    d = decode(obs[0, 2], c)  # 20 - 18.5 - 1 = 0.5
+    assert d["types"][0] == WALL and d["dist"][0] == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("offset, sin, cos", [((-2, 0), 0.0, 1.0),    # towards the top: 0 degrees
+                                              ((0, -2), 1.0, 0.0),    # towards the left: 90
+                                              ((2, 0), 0.0, -1.0),    # towards the bottom: 180
+                                              ((0, 2), -1.0, 0.0),    # towards the right: 270
+                                              ((-2, -2), math.sqrt(.5), math.sqrt(.5))])  # 45
+def test_direction_convention(offset, sin, cos):
+    env, obs = make_env([(10.0, 10.0)], [(10 + offset[0], 10 + offset[1], GREEN)], task=TASKS["green"])
+    d = decode(obs[0, 0], env.config)
+    assert d["types"] == [GREEN, 0, 0]
+    assert d["sin"][0] == pytest.approx(sin, abs=1e-12) and d["cos"][0] == pytest.approx(cos, abs=1e-12), \
+        f"entity at offset {offset}: expected sin {sin} cos {cos}, got {d['sin'][0]} {d['cos'][0]}"
+    assert d["sin"][1:] == [0.0, 0.0] and d["cos"][1:] == [0.0, 0.0], "empty slots read sin = cos = 0"
+
+
+def test_own_heading_sin_cos():
+    env, obs = make_env([(10.0, 10.0, 30.0), (10.0, 5.0, 270.0)], [(15.0, 15.0, RED)])
+    c = env.config
+    assert decode(obs[0, 0], c)["heading"] == pytest.approx([0.5, math.cos(math.radians(30))])
+    assert decode(obs[0, 1], c)["heading"] == pytest.approx([-1.0, 0.0], abs=1e-12)
+
+
+def test_stable_tie_order_wall_before_box_and_lower_box_index_first():
+    # agent at (3, 10): top wall at 3; box 2 at (6, 10) also at 3 -> wall first.
+    env, obs = make_env([(3.0, 10.0)], [(9.0, 9.0, RED), (9.0, 9.0, BLUE), (6.0, 10.0, GREEN)])
+    d = decode(obs[0, 0], env.config)
+    assert d["types"][:2] == [WALL, GREEN], f"at equal distance the wall comes before the box: {d['slots']}"
+    # boxes at equal distance: index order, regardless of direction or colour
+    env, obs = make_env([(10.0, 10.0)], [(10.0, 13.0, BLUE), (10.0, 7.0, RED), (13.0, 10.0, GREEN),
+                                         (7.0, 10.0, YELLOW)])
+    d = decode(obs[0, 0], env.config)
+    assert d["types"] == [BLUE, RED, GREEN], f"equal distances keep box index order: {d['slots']}"
+    # stacked boxes: the lower index first
+    env, obs = make_env([(10.0, 10.0)], [(15.0, 15.0, RED), (12.0, 12.0, YELLOW), (12.0, 12.0, BLUE)])
+    d = decode(obs[0, 0], env.config)
+    assert d["types"] == [YELLOW, BLUE, 0]
+    # walls among themselves: top, bottom, left, right (corner at equal distances)
+    env, obs = make_env([(2.0, 2.0), (17.0, 17.0)], [(10.0, 10.0, RED)])
+    assert decode(obs[0, 0], env.config)["sin"][:2] == pytest.approx([0.0, 1.0]), "top before left"
+    assert decode(obs[0, 1], env.config)["sin"][:2] == pytest.approx([0.0, -1.0]), "bottom before right"
+
+
+def test_other_agents_sensed_inclusive_after_walls_before_boxes():
+    # agent 1 exactly 4 away (sensed, <=); agent 2 at 3 and box at 3 (agent first); carried box unseen
+    agents = [(10.0, 10.0), (10.0, 14.0, 180.0, 1), (13.0, 10.0), (10.0, 5.9)]
+    boxes = [(7.0, 10.0, RED), (10.0, 11.0, BLUE)]
+    env, obs = make_env(agents, boxes, see_other_agents=True)
+    d = decode(obs[0, 0], env.config)
+    assert d["types"] == [AGENT, RED, AGENT], f"agents: inclusive range, before boxes on ties: {d['slots']}"
+    assert d["dist"] == pytest.approx([3.0, 3.0, 4.0])
+    env, obs = make_env(agents, boxes, see_other_agents=False)
+    assert decode(obs[0, 0], env.config)["types"] == [RED, 0, 0], "see_other_agents=False hides agents"
+
+
+def test_see_other_agents_with_a_batch_of_several_environments():
+    config = ForagingConfig(see_other_agents=True)
+    env = ForagingEnv(config, batch_size=3, device="cpu", dtype=F64)
+    try:
+        obs = env.reset(tasks=TASKS["red"], generator=0)
+        obs, *_ = step(env)
+    except RuntimeError as e:
+        raise AssertionError(f"BUG: see_other_agents=True crashes for batch_size > 1: {e}") from e
+    assert obs.shape == (3, 5, 41)
+
+
+def test_truncation_to_n_neighbors_and_padding():
+    boxes = [(12.0, 10.0, RED), (10.0, 11.0, BLUE), (13.0, 12.0, GREEN), (10.0, 8.0, YELLOW), (11.0, 11.0, GREEN)]
+    env, obs = make_env([(10.0, 10.0), (10.0, 16.0)], boxes)
+    c = env.config
+    d = decode(obs[0, 0], c)
+    # distances: 2, 1, 3.6, 2, 1.414 -> the three nearest are box 1, box 4, box 0 (box 3 ties, later index)
+    assert d["types"] == [BLUE, GREEN, RED] and d["dist"] == pytest.approx([1.0, math.sqrt(2), 2.0])
+    d = decode(obs[0, 1], c)  # (10, 16): right wall at 3, box 1 at 5 (out), nothing else
+    assert d["types"] == [WALL, 0, 0] and d["dist"] == [3.0, 0.0, 0.0]
+    assert d["slots"][1:] == [(0, 0.0, 0.0, 0.0)] * 2, "a missing slot is (0, 0, 0): type 'nothing' one-hot"
+    env, obs = make_env([(10.0, 10.0)], boxes, n_neighbors=2)
+    assert decode(obs[0, 0], env.config)["types"] == [BLUE, GREEN]
+
+
+@pytest.mark.parametrize("n_boxes", [1, 2])
+def test_padding_with_fewer_boxes_than_slots(n_boxes):
+    # n_neighbors = 3 but only n_boxes boxes exist: one box in range, the rest far away
+    boxes = [(8.0, 10.0, RED), (18.0, 18.0, BLUE)][:n_boxes]
+    env, obs = make_env([(5.0, 10.0)], boxes, fill=False)
+    d = decode(obs[0, 0], env.config)
+    assert d["types"] == [RED, 0, 0], (f"BUG: with {n_boxes} box(es) and 3 slots, one box at distance 3 "
+                                       f"reads {d['slots']}; expected [box, (0,0,0), (0,0,0)]")
+
+
+@pytest.mark.parametrize("n_neighbors", [4, 5, 6, 8])
+def test_padding_with_many_neighbour_slots(n_neighbors):
+    # one wall and one box in range; every other slot must be (0, 0, 0)
+    env, obs = make_env([(2.0, 10.0)], [(5.0, 10.0, RED), (15.0, 15.0, BLUE)], n_neighbors=n_neighbors)
+    d = decode(obs[0, 0], env.config)
+    expected = [WALL, RED] + [0] * (n_neighbors - 2)
+    assert d["types"] == expected, (f"BUG: n_neighbors={n_neighbors}: slots {d['slots']}; expected types "
+                                    f"{expected} (empty slots padded with nothing)")
+    assert d["dist"] == pytest.approx([2.0, 3.0] + [0.0] * (n_neighbors - 2))
+
+
+def test_carried_one_hot_and_target_one_hot():
+    env, obs = make_env([(10.0, 10.0, 180.0, 0), (10.0, 4.0), (15.0, 4.0, 180.0, 1)],
+                        [(15.0, 15.0, GREEN), (8.0, 8.0, YELLOW)], task=TASKS["green"])
+    c = env.config
+    d = decode(obs[0, 0], c)
+    assert d["carried"] == [0, 0, 0, 1, 0], "carrying colour 5: index 5 - 2 = 3"
+    assert d["target"] == [0, 0, 1, 0], "target 5: index 5 - 3 = 2"
+    assert decode(obs[0, 1], c)["carried"] == [1, 0, 0, 0, 0], "nothing: index 0"
+    assert decode(obs[0, 2], c)["carried"] == [0, 0, 0, 0, 1]
+    assert GREEN not in decode(obs[0, 0], c)["types"] + decode(obs[0, 1], c)["types"], "a carried box is not sensed"
+    state = make_state([(10.0, 10.0, 0.0, 0)], [(8.0, 8.0, 10)], task=TASKS["cyan"])
+    config = ForagingConfig(colors=tuple(range(3, 11)), n_agents=1, n_boxes=len(state.bx))
+    env = ForagingEnv(config, 1, dtype=F64)
+    obs = env.reset(state=batched_state_from([state], 8))
+    d = decode(obs[0, 0], config)
+    assert d["carried"] == [0] * 8 + [1] and d["target"] == [0] * 6 + [1, 0]
+
+
+# ---------------------------------------------------------------------------- picks
+def test_pick_radius_is_strict():
+    env, obs = make_env([(10.5, 10.0), (5.0, 15.49), (12.0, 5.51)],
+                        [(10.0, 10.0, RED), (5.0, 15.0, RED), (12.0, 6.0, RED)])
+    obs, reward, done, info = step(env)
+    assert info["picked"][0].tolist() == [-1, 1, 2], "distance exactly 0.5 must not pick; 0.49 must"
+    assert reward.item() == 2.0
+    assert env.state.carrying[0].tolist() == [-1, 1, 2]
+    assert env.state.box_present[0, :3].tolist() == [True, False, False]
+
+
+def test_pick_any_colour_wrong_colour_costs_one():
+    env, obs = make_env([(10.2, 10.0), (12.0, 14.3)], [(10.0, 10.0, BLUE), (12.0, 14.0, RED)])
+    obs, reward, done, info = step(env)
+    assert info["picked"][0].tolist() == [0, 1]
+    assert reward.item() == 0.0  # -1 for blue, +1 for red
+    env, obs = make_env([(10.2, 10.0)], [(10.0, 10.0, BLUE)])
+    obs, reward, done, info = step(env)
+    assert reward.item() == -1.0
+    assert decode(obs[0, 0], env.config)["carried"] == [0, 0, 1, 0, 0], "carries the blue box (index 4 - 2)"
+
+
+def test_nearest_box_picked_lowest_index_on_tie_and_carrier_does_not_pick():
+    env, obs = make_env([(10.0, 10.25), (14.0, 14.0, 180.0, 3)],
+                        [(10.0, 11.0, BLUE), (10.0, 10.0, YELLOW), (10.0, 10.0, RED), (14.0, 14.0, RED)])
+    obs, reward, done, info = step(env)
+    assert info["picked"][0].tolist() == [1, -1], "nearest box, the lower index of a stack; a carrier picks nothing"
+    assert env.state.box_present[0, :4].tolist() == [True, False, True, False]
+
+
+def test_two_agents_on_one_box_lower_index_wins_and_stack_goes_to_the_next():
+    # agent 1 is nearer, but agent 0 acts first
+    env, obs = make_env([(10.4, 10.0), (10.0, 10.1)], [(10.0, 10.0, RED), (15.0, 15.0, BLUE)])
+    obs, reward, done, info = step(env)
+    assert info["picked"][0].tolist() == [0, -1] and reward.item() == 1.0
+    # a box stacked on the same cell goes to the later agent
+    env, obs = make_env([(10.4, 10.0), (10.0, 10.1), (9.8, 10.0)],
+                        [(10.0, 10.0, RED), (15.0, 15.0, BLUE), (10.0, 10.0, BLUE), (10.0, 10.0, RED)])
+    obs, reward, done, info = step(env)
+    assert info["picked"][0].tolist() == [0, 2, 3], "stacked boxes go to agents in index order"
+    assert reward.item() == 1.0 - 1.0 + 1.0
+    # agent 1's nearest box is taken by agent 0: it then takes its next nearest if within reach
+    env, obs = make_env([(10.4, 10.0), (10.0, 10.45)], [(10.0, 10.0, RED), (10.0, 11.0, BLUE)])
+    obs, reward, done, info = step(env)
+    assert info["picked"][0].tolist() == [0, -1], "the next nearest (0.55 away) is out of reach"
+    env, obs = make_env([(10.4, 10.0), (10.0, 10.45)], [(10.0, 10.0, RED), (10.0, 10.0, BLUE)])
+    assert step(env)[3]["picked"][0].tolist() == [0, 1]
+
+
+def test_picked_box_disappears_from_sensing_at_once():
+    env, obs = make_env([(10.2, 10.0), (10.0, 12.0)], [(10.0, 10.0, RED), (16.0, 16.0, BLUE)])
+    c = env.config
+    assert decode(obs[0, 1], c)["types"][0] == RED
+    obs, reward, done, info = step(env)
+    assert info["picked"][0].tolist() == [0, -1]
+    for i in range(2):
+        assert RED not in decode(obs[0, i], c)["types"], f"agent {i} still senses the picked box"
+
+
+def test_pick_then_drop_in_the_same_step():
+    # a box lying in the drop zone: the agent picks it (+1) and drops it (+2) in one step
+    env, obs = make_env([(0.3, 5.1)], [(0.0, 5.0, RED), (10.0, 10.0, BLUE)], key=77)
+    obs, reward, done, info = step(env)
+    assert info["picked"][0].tolist() == [0] and info["dropped"][0].tolist() == [0]
+    assert reward.item() == 3.0
+
+
+# ---------------------------------------------------------------------------- drops
+def test_drop_zone_is_x_below_one():
+    agents = [(0.95, 5.0, 180.0, 0), (1.0, 8.0, 180.0, 1), (0.5, 12.0, 180.0, 2)]
+    boxes = [(10.0, 10.0, RED), (12.0, 12.0, RED), (14.0, 14.0, BLUE)]
+    env, obs = make_env(agents, boxes, key=4242, steps=7)
+    obs, reward, done, info = step(env)
+    assert info["dropped"][0].tolist() == [0, -1, 2], "x = 1.0 exactly is not in the drop zone"
+    assert info["drop_correct"][0].tolist()[0] is True and info["drop_correct"][0].tolist()[2] is False
+    assert reward.item() == 2.0, "a correct retrieval earns +2, a wrong one 0"
+    s = env.state
+    assert s.retrieved.tolist() == [1] and s.carrying[0].tolist() == [-1, 1, -1]
+    cells = [respawn_cell(4242, 7, i, 20) for i in range(3)]
+    assert info["respawn_cell"][0, 0].tolist() == list(cells[0]) and info["respawn_cell"][0, 2].tolist() == list(cells[2])
+    assert info["respawn_cell"][0, 1].tolist() == [-1, -1]
+    assert s.box_pos[0, 0].tolist() == list(cells[0]) and s.box_pos[0, 2].tolist() == list(cells[2])
+    assert s.box_present[0, :3].tolist() == [True, False, True]
+    assert s.box_color[0, :3].tolist() == [RED, RED, BLUE], "a respawned box keeps its colour"
+
+
+def test_dropped_box_hidden_this_step_visible_at_its_respawn_cell_next_step():
+    key, steps = 9001, 3
+    cx, cy = respawn_cell(key, steps, 0, 20)
+    # agent 1 waits 0.6 from the respawn cell (out of pick reach), facing it from the top
+    env, obs = make_env([(0.5, 5.0, 180.0, 0), (cx - 0.6, cy)], [(10.0, 3.0, GREEN), (19.0, 19.0, RED)],
+                        task=TASKS["green"], key=key, steps=steps)
+    c = env.config
+    obs, reward, done, info = step(env)
+    assert info["dropped"][0].tolist() == [0, -1] and reward.item() == 2.0
+    assert tuple(info["respawn_cell"][0, 0].tolist()) == (cx, cy)
+    assert GREEN not in decode(obs[0, 1], c)["types"], "the dropped box must not be sensed in its drop step"
+    assert GREEN not in decode(obs[0, 0], c)["types"]
+    obs, reward, done, info = step(env)
+    d = decode(obs[0, 1], c)
+    assert GREEN in d["types"], f"the respawned box must be sensed from the next step on: {d['slots']}"
+    j = d["types"].index(GREEN)
+    assert d["dist"][j] == pytest.approx(0.6) and d["cos"][j] == pytest.approx(-1.0), "seen below the agent"
+    assert info["picked"][0].tolist() == [-1, -1]
+
+
+def test_respawned_box_cannot_be_picked_in_its_drop_step():
+    # documented choice: a box dropped in a step is absent for the rest of that step
+    key, steps = 555, 0
+    cx, cy = respawn_cell(key, steps, 0, 20)
+    env, obs = make_env([(0.5, 5.0, 180.0, 0), (cx + 0.2, cy)], [(10.0, 3.0, RED), (19.0, 19.0, BLUE)],
+                        key=key, steps=steps)
+    obs, reward, done, info = step(env)
+    assert info["dropped"][0].tolist() == [0, -1]
+    assert info["picked"][0].tolist() == [-1, -1], "a box dropped this step is absent for later agents' picks"
+    obs, reward, done, info = step(env)
+    assert info["picked"][0].tolist() == [-1, 0] and reward.item() == 1.0, "next step it can be picked"
+
+
+def test_repositioning_off_removes_the_box():
+    env, obs = make_env([(0.5, 5.0, 180.0, 0), (9.0, 9.0)], [(10.0, 10.0, RED), (12.0, 12.0, BLUE)],
+                        repositioning=False)
+    obs, reward, done, info = step(env)
+    assert info["dropped"][0].tolist() == [0, -1] and reward.item() == 2.0
+    cell = info["respawn_cell"][0, 0].tolist()
+    s = env.state
+    assert s.box_present[0, :2].tolist() == [False, True] and s.carrying[0].tolist() == [-1, -1]
+    for _ in range(3):
+        obs, *_ = step(env)
+        assert env.state.box_present[0, :2].tolist() == [False, True]
+        assert RED not in decode(obs[0, 1], env.config)["types"]
+    assert cell == [-1, -1], (f"BUG (info only): with repositioning off the dropped box is gone, yet "
+                              f"info['respawn_cell'] reports cell {cell} instead of -1")
+
+
+# ---------------------------------------------------------------------------- episode end
+def test_max_retrieves_ends_the_episode_the_whole_step_counts_then_frozen():
+    agents = [(0.5, 5.0, 180.0, 0), (10.1, 10.0), (10.0, 14.2)]
+    boxes = [(10.0, 3.0, RED), (10.0, 10.0, RED), (10.0, 14.0, BLUE)]
+    env, obs = make_env(agents, boxes, max_retrieves=2, retrieved=1, steps=4)
+    obs, reward, done, info = step(env)
+    assert done.tolist() == [True], "retrieved reached max_retrieves"
+    assert reward.item() == 2.0 + 1.0 - 1.0, "every agent's reward of the ending step counts"
+    before = env.state
+    wheels = [[2.0, -2.0, 1.0]] * 3
+    for _ in range(3):
+        obs, reward, done, info = step(env, wheels)
+        assert reward.item() == 0.0 and done.tolist() == [True], "an ended environment earns nothing"
+        assert info["picked"][0].tolist() == [-1] * 3 and info["dropped"][0].tolist() == [-1] * 3
+        after = env.state
+        assert torch.equal(after.agent_pos, before.agent_pos) and torch.equal(after.heading, before.heading), \
+            "an ended environment does not move"
+        assert after.steps.tolist() == [5] and after.retrieved.tolist() == [2]
+
+
+def test_duration_ends_the_episode():
+    env, obs = make_env([(10.0, 10.0)], [(15.0, 15.0, RED)], duration=5, steps=2)
+    for t in range(3, 6):
+        obs, reward, done, info = step(env, [[1.0, 0.0, 0.0]])
+        assert env.state.steps.tolist() == [t]
+        assert done.tolist() == [t >= 5], f"after {t} steps of 5"
+    pos = env.state.agent_pos.clone()
+    obs, reward, done, info = step(env, [[1.0, 0.0, 0.0]])
+    assert done.tolist() == [True] and torch.equal(env.state.agent_pos, pos) and env.state.steps.tolist() == [5]
+
+
+def test_mixed_batch_only_the_ended_environment_freezes():
+    config = ForagingConfig(n_agents=1, n_boxes=N_FILLED, max_retrieves=1)
+    states = [make_state([(0.5, 5.0, 180.0, 0)], [(10.0, 10.0, RED)]),
+              make_state([(5.0, 5.0, 180.0, -1)], [(10.0, 10.0, RED)])]
+    env = ForagingEnv(config, 2, dtype=F64)
+    env.reset(state=batched_state_from(states, 4))
+    obs, reward, done, info = step(env, [[[0.0, 0.0, 0.0]], [[0.0, 0.0, 0.0]]])
+    assert done.tolist() == [True, False] and reward.tolist() == [2.0, 0.0]
+    x_before = env.state.agent_pos[:, 0, 0].clone()
+    obs, reward, done, info = step(env, [[[1.0, 0.0, 0.0]], [[1.0, 0.0, 0.0]]])
+    x_after = env.state.agent_pos[:, 0, 0]
+    assert x_after[0] == x_before[0] and x_after[1] != x_before[1]
+    assert env.state.steps.tolist() == [1, 2]
+
+
+# ---------------------------------------------------------------------------- kinematics
+def test_kinematics_one_step_exact():
+    w = [(1.3, -0.7, 0.4), (2.0, -2.0, 1.1), (0.0, 0.0, 0.0)]
+    agents = [(10.0, 10.0, 90.0), (7.0, 12.0, 359.9), (5.0, 5.0, 123.0)]
+    env, obs = make_env(agents, [(18.0, 2.0, RED)])
+    step(env, w)
+    s = env.state
+    for i, (x, y, h) in enumerate(agents):
+        vx, vy, r = (sum(A[row][j] * w[i][j] for j in range(3)) for row in range(3))
+        assert s.agent_pos[0, i, 0].item() == pytest.approx(x + vx * 0.1, abs=1e-12)
+        assert s.agent_pos[0, i, 1].item() == pytest.approx(y + vy * 0.1, abs=1e-12)
+        assert s.heading[0, i].item() == pytest.approx((h + math.degrees(r / 12.5 * 0.1)) % 360, abs=1e-9)
+    assert 0.0 <= s.heading[0, 1].item() < 1.0, "heading wraps modulo 360"
+
+
+def test_kinematics_matrix_columns():
+    # each wheel alone, speed 1: the displacement is that column of A times dt
+    env, obs = make_env([(10.0, 10.0), (10.0, 10.0), (10.0, 10.0)], [(18.0, 2.0, RED)])
+    step(env, [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    s = env.state
+    for j in range(3):
+        dx = s.agent_pos[0, j, 0].item() - 10.0
+        dy = s.agent_pos[0, j, 1].item() - 10.0
+        dh = s.heading[0, j].item() - 180.0
+        assert (dx, dy) == pytest.approx((A[0][j] * 0.1, A[1][j] * 0.1), abs=1e-12), f"wheel {j}"
+        assert dh == pytest.approx(math.degrees(A[2][j] / 12.5 * 0.1), abs=1e-9)
+
+
+def test_motion_is_in_the_arena_frame():
+    headings = [0.0, 77.0, 180.0, 300.0]
+    env, obs = make_env([(10.0, 10.0, h) for h in headings], [(18.0, 2.0, RED)])
+    step(env, [[1.5, 0.2, -0.9]] * 4)
+    p = env.state.agent_pos[0]
+    assert torch.equal(p, p[:1].expand_as(p)), "motion must not depend on the heading"
+
+
+def test_positions_clipped_to_the_arena():
+    agents = [(0.05, 10.0), (10.0, 0.01), (19.99, 19.99), (19.95, 5.0)]
+    env, obs = make_env(agents, [(15.0, 15.0, RED)])
+    wheels = [wheels_for(-1.0, 0.0), wheels_for(0.0, -1.0), wheels_for(1.0, 1.0), wheels_for(1.0, -1.0)]
+    step(env, wheels)
+    p = env.state.agent_pos[0].tolist()
+    assert p[0][0] == 0.0 and p[0][1] == pytest.approx(10.0), "x clipped at 0"
+    assert p[1][1] == 0.0 and p[1][0] == pytest.approx(10.0), "y clipped at 0"
+    assert p[2] == [20.0, 20.0], "x and y clipped at size"
+    assert p[3][0] == 20.0 and p[3][1] == pytest.approx(4.9), "only the coordinate that leaves is clipped"
+
+
+# ---------------------------------------------------------------------------- reset sampling
+def test_reset_sampling_rules():
+    config = ForagingConfig()
+    B = 200
+    env = ForagingEnv(config, B, dtype=F64)
+    tasks = [TASKS["red"], TASKS["green"]] * (B // 2)
+    env.reset(tasks=tasks, generator=3)
+    s = env.state
+    pos = s.box_pos
+    assert torch.equal(pos, pos.round()), "boxes on integer cells"
+    assert pos[..., 0].min() == 6 and pos[..., 0].max() == 18, "box x in {6..18}"
+    assert pos[..., 1].min() == 2 and pos[..., 1].max() == 18, "box y in {2..18}"
+    d = torch.cdist(pos, pos) + torch.eye(config.n_boxes, dtype=F64) * 100
+    assert d.min() >= 2.0, "boxes pairwise at least 2 apart"
+    for b in range(B):
+        target = tasks[b].target
+        colours = s.box_color[b].tolist()
+        assert colours.count(target) == 10, "exactly int(n_boxes * rate_target) target boxes"
+        assert set(colours) <= set(tasks[b].season)
+        assert s.target[b].item() == target
+    assert s.box_color.eq(s.target[:, None]).float().mean(0).min() > 0.3, "colours are permuted"
+    assert s.box_color.eq(s.target[:, None]).float().mean(0).max() < 0.7, "colours are permuted"
+    x, y = s.agent_pos[..., 0], s.agent_pos[..., 1]
+    assert (x >= 1).all() and (x <= 3).all() and x.min() < 1.1 and x.max() > 2.9
+    slots = torch.arange(1, 6, dtype=F64) * 20 / 6
+    assert ((y - slots).abs() <= 1).all() and (y - slots).abs().max() > 0.9
+    assert ((s.heading - 180).abs() <= 10).all() and (s.heading - 180).abs().max() > 9
+    assert (s.carrying == -1).all() and s.box_present.all()
+    assert (s.steps == 0).all() and (s.retrieved == 0).all() and not s.done.any()
+    assert s.season[0].tolist() == [True, True, False, False] and s.season[1].tolist() == [False, False, True, True]
+
+
+def test_reset_other_colours_drawn_from_the_season_only():
+    config = ForagingConfig(rate_target=0.33)
+    task = Task(RED, (RED, BLUE, YELLOW))
+    env = ForagingEnv(config, 50, dtype=F64)
+    env.reset(tasks=task, generator=11)
+    colours = env.state.box_color
+    assert (colours == RED).sum(1).tolist() == [6] * 50, "int(20 * 0.33) = 6 target boxes"
+    assert set(colours.unique().tolist()) == {RED, BLUE, YELLOW}
+    n_blue, n_yellow = (colours == BLUE).sum().item(), (colours == YELLOW).sum().item()
+    assert abs(n_blue - n_yellow) < 0.15 * (n_blue + n_yellow), "uniform over the other season colours"
+    env = ForagingEnv(ForagingConfig(rate_target=1.0), 4, dtype=F64)
+    env.reset(tasks=TASKS["green"], generator=1)
+    assert (env.state.box_color == GREEN).all()
+
+
+def test_reset_determinism_and_generators():
+    config = ForagingConfig()
+    wheels = torch.rand(30, 4, 5, 3, generator=torch.Generator().manual_seed(0), dtype=F64) * 4 - 2
+
+    def run(generator):
+        env = ForagingEnv(config, 4, dtype=F64)
+        out = [env.reset(tasks=TASKS["red"], generator=generator)]
+        for t in range(30):
+            o, r, d, _ = env.step(wheels[t])
+            out += [o, r]
+        return out, env.state
+
+    a, sa = run(5)
+    b, sb = run(5)
+    assert all(torch.equal(x, y) for x, y in zip(a, b)), "same seed, same trajectory"
+    c, sc = run(6)
+    assert not torch.equal(a[0], c[0]), "different seeds differ"
+    g1, g2 = torch.Generator().manual_seed(42), torch.Generator().manual_seed(42)
+    d, sd = run(g1)
+    e, se = run(g2)
+    assert all(torch.equal(x, y) for x, y in zip(d, e)) and torch.equal(sd.respawn_key, se.respawn_key)
+    f, sf = run(g1)  # the generator advanced
+    assert not torch.equal(d[0], f[0])
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_cpu_device_and_dtypes(dtype):
+    env = ForagingEnv(ForagingConfig(), 3, device="cpu", dtype=dtype)
+    obs = env.reset(tasks=TASKS["green"], generator=0)
+    assert obs.dtype == dtype and obs.device.type == "cpu" and obs.shape == (3, 5, 41)
+    obs, reward, done, info = env.step(torch.zeros(3, 5, 3, dtype=dtype))
+    assert obs.dtype == dtype and env.state.agent_pos.dtype == dtype
+    assert reward.shape == (3,) and done.dtype == torch.bool
+    ref = ForagingEnv(ForagingConfig(), 3, device="cpu", dtype=F64)
+    ref_obs = ref.reset(tasks=TASKS["green"], generator=0)
+    w = torch.rand(10, 3, 5, 3, generator=torch.Generator().manual_seed(1), dtype=F64) * 4 - 2
+    env.reset(tasks=TASKS["green"], generator=0)
+    for t in range(10):
+        obs, *_ = env.step(w[t].to(dtype))
+        ref_obs, *_ = ref.step(w[t])
+    assert (obs.double() - ref_obs).abs().max() < 1e-4
+
+
+# ---------------------------------------------------------------------------- tasks
+def test_per_environment_tasks():
+    config = ForagingConfig(n_agents=2, n_boxes=N_FILLED)
+    agents = [(10.2, 10.0), (12.0, 12.3)]
+    boxes = [(10.0, 10.0, RED), (12.0, 12.0, GREEN)]
+    states = [make_state(agents, boxes, task=TASKS["red"]), make_state(agents, boxes, task=TASKS["green"])]
+    env = ForagingEnv(config, 2, dtype=F64)
+    obs = env.reset(state=batched_state_from(states, 4))
+    assert decode(obs[0, 0], config)["target"] == [1, 0, 0, 0]
+    assert decode(obs[1, 0], config)["target"] == [0, 0, 1, 0]
+    obs, reward, done, info = step(env)
+    assert reward.tolist() == [0.0, 0.0]  # +1 -1 in both, from opposite boxes
+    assert info["picked"].tolist() == [[0, 1], [0, 1]]
+    # drop both: red env earns +2 for the red box only, green env for the green box only
+    s = env.state
+    s.agent_pos[:, :, 0] = 0.5
+    env.reset(state=s)
+    obs, reward, done, info = step(env)
+    assert reward.tolist() == [2.0, 2.0]
+    assert info["drop_correct"].tolist() == [[True, False], [False, True]]
+    assert env.state.retrieved.tolist() == [1, 1]
+
+
+def test_sampling_with_one_task_per_environment():
+    env = ForagingEnv(ForagingConfig(colors=tuple(range(3, 11))), 4, dtype=F64)
+    tasks = [TASKS[n] for n in ("red", "green", "purple", "cyan")]
+    obs = env.reset(tasks=tasks, generator=2)
+    for b, t in enumerate(tasks):
+        assert set(env.state.box_color[b].tolist()) <= set(t.season)
+        assert decode(obs[b, 0], env.config)["target"].index(1.0) == t.target - 3
+
+
+def test_set_tasks_changes_the_task_mid_episode():
+    # agent 0 creeps towards the green box at 0.1 per step: out of reach after step 1, in reach after step 2
+    env, obs = make_env([(12.0, 11.35), (5.0, 5.0)], [(10.0, 10.0, RED), (12.0, 12.0, GREEN)])
+    creep = [wheels_for(0.0, 1.0), [0.0, 0.0, 0.0]]
+    obs, reward, done, info = step(env, creep)
+    assert info["picked"][0].tolist() == [-1, -1]
+    assert decode(obs[0, 0], env.config)["target"] == [1, 0, 0, 0]
+    env.set_tasks(TASKS["green"])
+    s = env.state
+    assert s.target.tolist() == [GREEN] and s.season[0].tolist() == [False, False, True, True]
+    assert s.box_color[0, :2].tolist() == [RED, GREEN], "boxes keep their colours"
+    obs, reward, done, info = step(env, creep)
+    assert decode(obs[0, 0], env.config)["target"] == [0, 0, 1, 0]
+    assert info["picked"][0].tolist() == [1, -1] and reward.item() == 1.0, "green is now the target"
+    assert env.state.steps.tolist() == [2]
+
+
+# ---------------------------------------------------------------------------- helpers of the module
+def test_outputs_to_wheels():
+    config = ForagingConfig()
+    out = torch.tensor([0.0, 0.5, 1.0, 0.25], dtype=F64)
+    assert outputs_to_wheels(out, config).tolist() == [-2.0, 0.0, 2.0, -1.0]
+
+
+def test_respawn_stream_matches_a_plain_python_hash():
+    rng = random.Random(0)
+    keys = [rng.randrange(0, 2 ** 31 - 1) for _ in range(64)] + [0, 2 ** 31 - 2]
+    xs = [rng.randrange(0, 2 ** 31) for _ in range(200)]
+    assert hash31(torch.tensor(xs)).tolist() == [py_hash31(x) for x in xs]
+    seen = set()
+    for size in (20, 16):
+        for steps in (0, 1, 7, 499):
+            cells = respawn_cells(torch.tensor(keys), torch.full((len(keys),), steps), 5, size)
+            assert cells.shape == (5, len(keys), 2) and cells.dtype == torch.long
+            for i in range(5):
+                for b, key in enumerate(keys):
+                    cell = respawn_cell(key, steps, i, size)
+                    assert tuple(cells[i, b].tolist()) == cell
+                    if size == 20:
+                        seen.add(cell)
+    xs_, ys_ = {c[0] for c in seen}, {c[1] for c in seen}
+    assert xs_ == set(range(6, 19)) and ys_ == set(range(2, 19)), "respawn cells: x in {6..18}, y in {2..18}"

@@ -1,0 +1,53 @@
+"""Every example runs, at a tiny size."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from lifelong_evo.cli import main
+from lifelong_evo.config import load_toml, resolve
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+TINY = ["--generations", "2", "--population", "8", "--evals", "1", "--retention-every", "1", "--env", "duration=30",
+        "--no-record", "--quiet"]
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in EXAMPLES.glob("*.toml") if p.name != "sweep.toml"))
+def test_experiment_configs_resolve(name):
+    config = resolve("paper", load_toml(EXAMPLES / name))
+    assert config.generations == 200 and config.population == 300 and config.evals == 10
+
+
+@pytest.mark.parametrize("name", ["paper_reg11.toml", "paper_four_tasks.toml", "es_comparison.toml"])
+def test_experiment_configs_run(name, tmp_path):
+    assert main(["--config", str(EXAMPLES / name), *TINY, "--out", str(tmp_path), "--name", "x"]) == 0
+    config = json.loads((tmp_path / "x/config.json").read_text())
+    expected = load_toml(EXAMPLES / name)
+    assert config["algo"] == expected["algo"] and config["schedule"] == expected["schedule"]
+    if name == "paper_four_tasks.toml":
+        assert config["env_resolved"]["colors"] == list(range(3, 11))
+
+
+def test_custom_optimizer_example(tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(EXAMPLES.parent)}
+    subprocess.run([sys.executable, str(EXAMPLES / "custom_optimizer.py"), *TINY, "--out", str(tmp_path),
+                    "--name", "hill"], check=True, env=env)
+    summary = json.loads((tmp_path / "hill/summary.json").read_text())
+    assert summary["phases"] == ["red", "green", "red"]
+    rows = (tmp_path / "hill/metrics.csv").read_text().splitlines()
+    assert len(rows) == 1 + 6
+
+
+def test_gymnasium_example(capsys):
+    spec = importlib.util.spec_from_file_location("gymnasium_example", EXAMPLES / "gymnasium_env.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    module.main(steps=20, num_envs=2)
+    out = capsys.readouterr().out
+    assert "one environment" in out and "2 environments in one torch batch" in out
