@@ -146,19 +146,19 @@ class _BoxKeys:
     """Integer order keys for (distance, index) pairs, so that ``amin`` finds the nearest box and
     its index in one vectorised reduction (``argmin`` over the box axis is far slower).
 
-    A key is the distance in fixed point, clamped at twice the sensor range (farther boxes are
-    never sensed or picked), shifted left by ``index_bits`` and or-ed with the index: equal
-    distances order by index, as the spec's stable sort does. Distances closer than
-    ``resolution`` (about 1e-7 units for the paper's arena) also count as tied.
+    A key is the distance in fixed point, clamped at ``cap`` (just beyond the sensor range:
+    farther boxes are never sensed or picked), shifted left by ``index_bits`` and or-ed with the
+    index: equal distances order by index, as the spec's stable sort does. Distances closer
+    than ``resolution`` (2**-22, about 2.4e-7 units, for the paper's arena) also count as tied.
     """
 
     def __init__(self, n_candidates: int, cap: float):
         self.index_bits = max(1, (n_candidates - 1).bit_length())
         self.index_mask = (1 << self.index_bits) - 1
         self.cap = cap
-        distance_bits = 29 - self.index_bits        # one bit spare for "absent", one for the sign
-        self.scale = float(2 ** (distance_bits - math.ceil(math.log2(cap + 1))))
-        self.absent = 1 << 30                       # above every present key
+        self.absent = 1 << 30                       # above every present key (bit 31 is the sign)
+        room = (self.absent >> self.index_bits) - 1  # the largest fixed-point distance that fits
+        self.scale = float(2 ** math.floor(math.log2(room / cap)))
         self.resolution = 1.0 / self.scale
 
     def keys(self, dist: torch.Tensor, absent: torch.Tensor) -> torch.Tensor:
@@ -218,7 +218,7 @@ class ForagingEnv:
         self._carry_ids = torch.arange(c.n_colors + 1, device=self.device)[:, None, None]
         self._colour_ids = torch.arange(3, 3 + c.n_colors, device=self.device)[:, None]
         n_others = c.n_boxes + (c.n_agents if c.see_other_agents else 0)
-        self._box_keys = _BoxKeys(n_others, cap=2 * max(c.sensor_range, c.sensitivity))
+        self._box_keys = _BoxKeys(n_others, cap=max(c.sensor_range, c.sensitivity) + 0.5)
         self._slot_bits = (4 + c.n_neighbors - 1).bit_length()  # walls + nearest others, merged
         self._arena: _Arena | None = None
 
