@@ -4,3 +4,10 @@ from .foraging import ForagingEnv, ForagingState, outputs_to_wheels
 
 __all__ = ["COLOR_IDS", "COLOR_NAMES", "TASKS", "ConfigError", "ForagingConfig", "ForagingEnv", "ForagingState",
            "Task", "colors_for_tasks", "outputs_to_wheels", "task_by_name"]
+
+from .gym_env import ENV_ID, SwarmForagingEnv, SwarmForagingVectorEnv, register_envs
+from .pettingzoo_env import ForagingParallelEnv, parallel_env
+
+__all__ += ["ENV_ID", "ForagingParallelEnv", "SwarmForagingEnv", "SwarmForagingVectorEnv", "parallel_env",
+            "register_envs"]
+register_envs()  # gymnasium.make("lifelong_evo/SwarmForaging-v0") after `import envs`

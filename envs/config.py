@@ -106,11 +106,13 @@ class ForagingConfig:
             raise ConfigError(
                 f"colors must be the contiguous ids 3..{2 + max(len(self.colors), 1)} in order "
                 f"(they index the observation one-hot), got {list(self.colors)}")
-        cells = (math.ceil(self.size - 1) - 6) * (math.ceil(self.size - 1) - 2)
-        if self.n_boxes > cells // 4:
-            raise ConfigError(
-                f"n_boxes={self.n_boxes} cannot be placed 2 apart in a size-{self.size} arena: "
-                f"use at most {cells // 4} boxes or a larger size")
+        # every jammed placement of cells >= 2 apart still holds ceil(nx/3) * ceil(ny/3) boxes, so
+        # up to that many the spec's redraw-until-free placement always finishes
+        nx, ny = math.ceil(self.size - 1) - 6, math.ceil(self.size - 1) - 2
+        fits = math.ceil(nx / 3) * math.ceil(ny / 3)
+        if self.n_boxes > fits:
+            raise ConfigError(f"n_boxes={self.n_boxes} may not fit 2 apart in a size-{self.size} arena: "
+                              f"use at most {fits} boxes or a larger size")
 
     @property
     def n_colors(self) -> int:

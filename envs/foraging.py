@@ -241,6 +241,8 @@ class ForagingEnv:
 
     def set_tasks(self, tasks: Task | Sequence[Task]) -> None:
         """Change the task of the running episodes (a drift); boxes keep their colours."""
+        if self._arena is None:
+            raise ConfigError("set_tasks changes running episodes: call reset first")
         self._arena.target, self._arena.season = self.task_tensors(tasks)
 
     def sample_state(self, tasks: Task | Sequence[Task], generator: torch.Generator | int | None = None,
@@ -312,20 +314,23 @@ class ForagingEnv:
         self._arena = _Arena.from_state(state)
         return self._observe_arena()
 
-    def reset_done(self, tasks: Task | Sequence[Task], generator: torch.Generator | int | None = None) -> torch.Tensor:
-        """Replace the ended environments with fresh ones (autoreset); returns all observations.
+    def reset_done(self, tasks: Task | Sequence[Task], generator: torch.Generator | int | None = None,
+                   mask: torch.Tensor | None = None) -> torch.Tensor:
+        """Replace environments with fresh episodes (autoreset): those in ``mask`` (B,), by
+        default every ended one. ``tasks``: one task, or one per environment of the batch.
 
-        ``tasks``: one task, or one per environment of the whole batch (only the ended ones' are used).
+        Returns a fresh read of every environment's observation; for an environment that was not
+        reset it can differ from what ``step`` returned, since a box dropped in that step is
+        visible from now on.
         """
-        done = self._arena.done.nonzero().squeeze(1)
-        if len(done):
+        which = (self._arena.done if mask is None else mask.to(self.device)).nonzero().squeeze(1)
+        if len(which):
             if not isinstance(tasks, Task):
-                tasks = [tasks[i] for i in done.tolist()]
-            fresh = _Arena.from_state(self.sample_state(tasks, generator, n=len(done)))
+                tasks = [tasks[i] for i in which.tolist()]
+            fresh = _Arena.from_state(self.sample_state(tasks, generator, n=len(which)))
             for name in fields(_Arena):
                 current, new = getattr(self._arena, name.name), getattr(fresh, name.name)
-                axis = 1 if name.name in _BATCH_LAST else 0
-                current.index_copy_(axis, done, new)
+                current.index_copy_(1 if name.name in _BATCH_LAST else 0, which, new)
         return self._observe_arena()
 
     def observe(self) -> torch.Tensor:
@@ -371,7 +376,8 @@ class ForagingEnv:
 
         Returns ``(observations (B, A, obs_dim), rewards (B,), done (B,), info)``; ``info`` holds,
         per environment and agent, ``picked`` / ``dropped`` box indices (-1 for none),
-        ``drop_correct`` and ``respawn_cell`` (the cell a dropped box went to, -1 otherwise).
+        ``drop_correct`` and ``respawn_cell`` (the cell a dropped box went to, -1 otherwise), and
+        per environment ``terminated`` (max retrievals reached) and ``truncated`` (duration reached).
         """
         c, a = self.config, self._arena
         active = ~a.done
@@ -413,7 +419,8 @@ class ForagingEnv:
         self._arena = replace(a, ax=ax, ay=ay, heading=heading, carrying=carrying, bx=bx, by=by,
                               present=present, steps=steps, retrieved=retrieved, done=done)
         info = {"picked": picked.T, "dropped": dropped.T, "drop_correct": drop_correct.T,
-                "respawn_cell": torch.where(dropping[..., None], respawn, -1).transpose(0, 1)}
+                "respawn_cell": torch.where(dropping[..., None], respawn, -1).transpose(0, 1),
+                "terminated": retrieved >= c.max_retrieves, "truncated": steps >= c.duration}
         return observations, reward.to(self.dtype), done, info
 
     @staticmethod

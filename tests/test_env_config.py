@@ -71,7 +71,14 @@ def test_too_many_boxes_for_the_arena():
         ForagingConfig(size=10.0, n_boxes=20)
     with pytest.raises(ConfigError, match="size"):
         ForagingConfig(size=5.0)
-    ForagingConfig(n_boxes=40)  # plenty of room in the paper's arena
+    with pytest.raises(ConfigError, match="at most 30 boxes"):
+        ForagingConfig(n_boxes=31)
+    # the most the paper's arena allows can always be placed (a jam would hang reset)
+    from envs import TASKS, ForagingEnv
+
+    env = ForagingEnv(ForagingConfig(n_boxes=30), batch_size=64)
+    env.reset(TASKS["red"], generator=0)
+    assert env.state.box_present.all()
 
 
 def test_task_target_outside_its_season():
