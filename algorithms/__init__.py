@@ -30,7 +30,7 @@ def make_optimizer(name: str, *, obs_dim: int, population_size: int, seed: int,
 def policy_from_export(exported: dict, device: str = "cpu") -> BatchedPolicy:
     """A one-controller policy from what ``Optimizer.export`` wrote (NEAT genome or MLP)."""
     if exported.get("format") == "neat-python-genome":
-        from .neat_optimizer import policy_from_export as neat_policy
+        from .neat_export import policy_from_export as neat_policy
 
         return neat_policy(exported, device)
     if "layer_sizes" in exported:

@@ -86,5 +86,5 @@ class Optimizer(ABC):
 
     @abstractmethod
     def export(self, index: int) -> dict[str, Any]:
-        """Controller ``index`` of the last asked population in a safe, shareable form
-        (JSON-serialisable values or tensors, never pickles)."""
+        """Controller ``index`` of the last asked population as a JSON-serialisable dict (safe to
+        share: never a pickle) that ``algorithms.policy_from_export`` turns back into a policy."""

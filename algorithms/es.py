@@ -186,7 +186,7 @@ class ESOptimizer(Optimizer):
         if not 0 <= index < self.population_size:
             raise IndexError(f"controller index {index} not in [0, {self.population_size})")
         return {"layer_sizes": list(self.layer_sizes),
-                "parameters": self._population[index].detach().cpu().clone()}
+                "parameters": self._population[index].detach().cpu().tolist()}
 
     def state_dict(self) -> dict[str, Any]:
         """Tensors and plain values only (loads with ``torch.load(weights_only=True)``)."""

@@ -182,7 +182,10 @@ def _file_layer(path: str) -> tuple[dict[str, list[Any]], dict[str, Any], str | 
             if not listed:
                 raise CliError(f"[grid] {key} in {path} is an empty list: give at least one value")
             typed = [_coerce(name, v, f"in {path}") if "." not in key else v for v in listed]
-            (axes.__setitem__(key, typed) if len(typed) > 1 else fixed.__setitem__(key, typed[0]))
+            if len(typed) > 1:
+                axes[key] = typed
+            else:
+                fixed[key] = typed[0]
         else:
             fixed[key] = _coerce(name, value, f"in {path}") if "." not in key else value
 
@@ -223,7 +226,10 @@ def build_grid(args: argparse.Namespace) -> Grid:
         fixed.pop(key, None)
         if len(values) != len(set(map(repr, values))):
             raise CliError(f"{key} lists a value twice ({values}): give each value once")
-        (axes.__setitem__(key, values) if len(values) > 1 else fixed.__setitem__(key, values[0]))
+        if len(values) > 1:
+            axes[key] = values
+        else:
+            fixed[key] = values[0]
 
     for key in RUN_FIELDS:
         value = getattr(args, key, None)
@@ -244,7 +250,9 @@ def build_grid(args: argparse.Namespace) -> Grid:
             raise CliError("--gpus-per-trial runs trials on cuda: drop --device or set it to cuda")
         if "device" not in axes:
             fixed["device"] = "cuda"
-    order = [k for k in RUN_FIELDS if k != "seed"] + sorted(k for k in axes if "." in k) + ["seed"]
+    first = ["algo", "schedule", "reg"]  # as in cli.default_name
+    order = [*first, *(k for k in RUN_FIELDS if k not in first and k != "seed"),
+             *sorted(k for k in axes if "." in k), "seed"]
     axes = {k: axes[k] for k in order if k in axes}
     grid = Grid(axes, fixed, preset, args.name or name)
     for combo in itertools.product(*axes.values()):
@@ -427,7 +435,7 @@ def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]
         if len(group["regs"]) < 2 or not group["by_seed"]:
             continue
         choices = []
-        for seed in sorted(group["by_seed"], key=str):
+        for seed in sorted(group["by_seed"]):
             score, reg, tag = max(group["by_seed"][seed], key=lambda c: (c[0], -c[1]))
             choices.append({"seed": seed, "reg": reg, "score": score, "tag": tag})
         result.append({"config": group["configs"][choices[0]["tag"]], "choices": choices})
@@ -453,7 +461,9 @@ def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any,
 
     def fmt(values: list[float]) -> str:
         mean, low, high = bootstrap_ci(values)
-        return "-" if math.isnan(mean) else f"{mean:.2f}" if len(values) == 1 else f"{mean:.2f} [{low:.2f}, {high:.2f}]"
+        if math.isnan(mean):
+            return "-"
+        return f"{mean:.2f}" if len(values) == 1 else f"{mean:.2f} [{low:.2f}, {high:.2f}]"
 
     rows: list[dict[str, Any]] = []
     transfer = ("ACC_pop", "BWT_pop", "FWT_pop", "ACC_top", "BWT_top", "FWT_top")
@@ -478,7 +488,8 @@ def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any,
         overview.append(f"| {label} | {len(selection['choices'])} | {lambdas} | {fmt(per_metric[CRITERION])} | "
                         + " | ".join(fmt(per_metric.get(k, [])) for k in transfer) + " |")
         lines = [f"### {label}", "", f"lambda per seed: {lambdas}", "", "| phase | C (current) |", "|---|---|"]
-        lines += [f"| {name[2:]} | {fmt(values)} |" for name, values in per_metric.items() if name.startswith("C phase")]
+        lines += [f"| {name[2:]} | {fmt(values)} |" for name, values in per_metric.items()
+                  if name.startswith("C phase")]
         wheres = [name[len("R_pop "):] for name in per_metric if name.startswith("R_pop ")]
         if wheres:
             lines += ["", "| task at end of phase | R_pop | F_pop | R_top | F_top |", "|---|---|---|---|---|"]
@@ -537,7 +548,8 @@ def _start_ray(args: argparse.Namespace):
         ray.init(address=args.address, runtime_env={"py_modules": modules, "excludes": ["__pycache__"]})
     else:
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-        ray.init(num_cpus=cores, include_dashboard=False)
+        # "local": always a new instance, never a cluster that `ray start` left running on this machine
+        ray.init(address="local", num_cpus=cores, include_dashboard=False)
     return ray, True
 
 
@@ -550,8 +562,11 @@ def main(args: argparse.Namespace) -> int:
     grid.name = grid.name or default_sweep_name(grid)
     if args.workers is not None and args.workers < 1:
         raise CliError(f"--workers must be >= 1, got {args.workers}")
+    if args.retries < 0:
+        raise CliError(f"--retries must be >= 0, got {args.retries}")
     sweep_dir = (Path(args.out) / grid.name).resolve()
     to_run: list[Trial] = []
+    resuming: set[str] = set()
     for trial in grid.trials:
         state, why = ("new", "") if args.overwrite else trial_state(sweep_dir / trial.name, trial.config)
         if state == "done":
@@ -561,14 +576,18 @@ def main(args: argparse.Namespace) -> int:
             trial.status, trial.error = "failed", why
         else:
             to_run.append(trial)
+            if state == "resume":
+                resuming.add(trial.name)
     axes = ", ".join(f"{k} ({len(v)})" for k, v in grid.axes.items()) or "no axes"
-    _print(f"sweep {grid.name}: {len(grid.trials)} trials over {axes}, preset {grid.preset}; "
+    _print(f"sweep {grid.name}: {len(grid.trials)} trial(s) over {axes}, preset {grid.preset}; "
            f"{len(to_run)} to run -> {sweep_dir}")
     for trial in grid.trials:
         if trial.status == "done":
             _print(f"skipped {trial.name} (done)")
         elif trial.status == "failed":
             _print(f"failed  {trial.name}: {trial.error}")
+        elif trial.name in resuming:
+            _print(f"resume  {trial.name} (from its last checkpoint)")
     if args.dry_run:
         for trial in to_run:
             _print(f"would run {trial.name}")
@@ -579,8 +598,11 @@ def main(args: argparse.Namespace) -> int:
     write_sweep_json(sweep_dir, grid, ray_settings)
     write_trials_csv(sweep_dir, grid)
     interrupted = False
-    if to_run:
-        interrupted = _run_trials(args, grid, to_run, sweep_dir)
+    try:
+        if to_run:
+            _run_trials(args, grid, to_run, sweep_dir)
+    except KeyboardInterrupt:  # Ctrl-C: running trials were cancelled; their checkpoints stay
+        interrupted = True
     write_trials_csv(sweep_dir, grid)
     if interrupted:
         print(f"\ninterrupted: finished trials and checkpoints are kept in {sweep_dir}; "
@@ -590,12 +612,14 @@ def main(args: argparse.Namespace) -> int:
     counts = {s: sum(t.status == s for t in grid.trials) for s in STATUSES}
     _print("")
     _print(table)
-    _print(f"\n{counts['done']} done, {counts['failed']} failed; trials.csv, sweep.json, comparison.md/.csv in {sweep_dir}")
+    _print(f"\n{counts['done']} done, {counts['failed']} failed; results in {sweep_dir} (trials.csv, sweep.json"
+           + (", comparison.md/.csv)" if counts["done"] else ")"))
     return 1 if counts["failed"] else 0
 
 
-def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep_dir: Path) -> bool:
-    """Run ``to_run`` on Ray, recording each result as it comes; True when interrupted (Ctrl-C)."""
+def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep_dir: Path) -> None:
+    """Run ``to_run`` on Ray, recording each result as it comes; on Ctrl-C, cancel the running
+    trials (killing their workers) and raise KeyboardInterrupt."""
     ray, started = _start_ray(args)
     in_flight: dict[Any, Trial] = {}
     try:
@@ -626,7 +650,8 @@ def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep
                         result = ray.get(ref)
                     except ray.exceptions.RayError as error:  # worker killed, out of memory, cancelled
                         result = {"status": "failed", "error": _one_line(error), "wall_time_s": None}
-                    trial.status, trial.error, trial.wall_time_s = result["status"], result["error"], result["wall_time_s"]
+                    trial.status, trial.error = result["status"], result["error"]
+                    trial.wall_time_s = result["wall_time_s"]
                     finished += 1
                     wall = "" if trial.wall_time_s is None else f" ({trial.wall_time_s:.0f} s)"
                     line = f"[{finished}/{len(grid.trials)}] {trial.status:<6} {trial.name}{wall}"
@@ -635,8 +660,7 @@ def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep
         except KeyboardInterrupt:
             for ref in in_flight:
                 ray.cancel(ref, force=True)
-            return True
-        return False
+            raise
     finally:
         if started:
             ray.shutdown()

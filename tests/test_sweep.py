@@ -1,0 +1,159 @@
+"""``python -m lifelong_evo sweep`` on a local Ray with 2 CPUs (one Ray for the module): a smoke
+grid completes and aggregates, a failing trial is recorded while the others finish, a second
+invocation skips finished trials, Ctrl-C stops cleanly; and (no Ray) the grid parsing and the
+model-specific lambda selection."""
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from lifelong_evo.cli import main
+from lifelong_evo.sweep import model_specific_report, select_model_specific, selection_score
+
+ray = pytest.importorskip("ray")
+
+CONTRACT = ("config.json", "metrics.csv", "summary.json", "controllers/final-top.json")
+SMOKE = ["--preset", "smoke", "--no-record"]
+
+
+def _trials(sweep_dir: Path) -> dict[str, dict[str, str]]:
+    with open(sweep_dir / "trials.csv", newline="") as handle:
+        return {row["trial"]: row for row in csv.DictReader(handle)}
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def smoke_sweep(local_ray, tmp_path_factory):
+    out = tmp_path_factory.mktemp("sweeps")
+    argv = ["sweep", "--algo", "neat,openai-es", "--seed", "2,3", "--generations", "2", *SMOKE,
+            "--out", str(out), "--name", "smoke"]
+    assert main(argv) == 0
+    return out / "smoke", argv
+
+
+def test_smoke_sweep_completes_and_aggregates(smoke_sweep):
+    sweep_dir, _ = smoke_sweep
+    names = ["neat-seed2", "neat-seed3", "openai-es-seed2", "openai-es-seed3"]
+    trials = _trials(sweep_dir)
+    assert sorted(trials) == names
+    assert all(row["status"] == "done" and row["error"] == "" and float(row["wall_time_s"]) > 0
+               for row in trials.values())
+    for name in names:
+        for item in CONTRACT:
+            assert (sweep_dir / name / item).is_file(), (name, item)
+        assert sorted((sweep_dir / name / "checkpoints").glob("generation-*.pt"))
+        config = json.loads((sweep_dir / name / "config.json").read_text())
+        assert (config["algo"], config["seed"], config["generations"], config["threads"]) == \
+            (name.rsplit("-seed", 1)[0], int(name[-1]), 2, 1)
+    sweep = json.loads((sweep_dir / "sweep.json").read_text())
+    assert sweep["grid"] == {"algo": ["neat", "openai-es"], "seed": [2, 3]}
+    assert [t["trial"] for t in sweep["trials"]] == names
+    assert (sweep_dir / "comparison.md").read_text().strip()
+    # the compare table over the sweep: 2 configurations, 2 seeds each (printed, and in comparison.md/.csv)
+    with open(sweep_dir / "comparison.csv", newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    assert {row["algo"] for row in rows} == {"neat", "openai-es"}
+    assert {row["configuration"] for row in rows} == {"neat reg=0 red-green-red", "openai-es reg=0 red-green-red"}
+    assert all(row["n"] == "2" for row in rows if row["metric"].startswith(("C phase", "ACC_")))
+    assert "| neat reg=0 red-green-red | 2 |" in (sweep_dir / "comparison.md").read_text()
+
+
+def test_second_invocation_skips_finished_trials(smoke_sweep, capsys):
+    sweep_dir, argv = smoke_sweep
+    before = {p: p.stat().st_mtime_ns for p in sweep_dir.glob("*/metrics.csv")}
+    assert len(before) == 4
+    capsys.readouterr()
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert printed.count("skipped") == 4 and "0 to run" in printed
+    assert "| neat reg=0 red-green-red | 2 |" in printed  # the table is printed at the end
+    assert {p: p.stat().st_mtime_ns for p in sweep_dir.glob("*/metrics.csv")} == before
+    assert all(row["status"] == "done" for row in _trials(sweep_dir).values())
+
+
+def test_failed_trial_is_reported_and_the_others_finish(local_ray, tmp_path, capsys):
+    # sigma is an ES option: NEAT's constructor refuses it when its trial starts; OpenAI-ES takes it.
+    argv = ["sweep", "--algo", "neat,openai-es", "--seed", "2", "--option", "sigma=0.05", "--generations", "1",
+            *SMOKE, "--out", str(tmp_path), "--name", "failing"]
+    assert main(argv) == 1
+    printed = capsys.readouterr().out
+    trials = _trials(tmp_path / "failing")
+    assert trials["openai-es"]["status"] == "done"
+    assert trials["neat"]["status"] == "failed"
+    assert "sigma" in trials["neat"]["error"] and "\n" not in trials["neat"]["error"]
+    assert "failed neat" in printed and "sigma" in printed
+    assert (tmp_path / "failing" / "openai-es" / "summary.json").is_file()
+
+
+def test_ctrl_c_cancels_and_keeps_trials_csv(local_ray, tmp_path, monkeypatch, capsys):
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ray, "wait", interrupted)
+    argv = ["sweep", "--algo", "openai-es", "--seed", "5,6", *SMOKE, "--out", str(tmp_path), "--name", "stopped"]
+    assert main(argv) == 130
+    assert "run the same command again" in capsys.readouterr().err
+    assert {row["status"] for row in _trials(tmp_path / "stopped").values()} == {"pending"}
+
+
+def test_grid_from_flags_and_file(tmp_path, capsys):
+    sweep_file = tmp_path / "grid.toml"
+    sweep_file.write_text('preset = "smoke"\nschedule = "red:2,green:1"\n[grid]\nreg = [0, 5]\nseed = [1, 2]\n'
+                          '[grid.algo_options]\nreferences = [1, 2]\n')
+    assert main(["sweep", "--config", str(sweep_file), "--seed", "7", "--algo", "neat",
+                 "--out", str(tmp_path), "--dry-run"]) == 0
+    printed = capsys.readouterr().out
+    assert "sweep grid: 4 trial(s)" in printed
+    assert [line.split()[-1] for line in printed.splitlines() if line.startswith("would run")] == \
+        ["reg0-references1", "reg0-references2", "reg5-references1", "reg5-references2"]
+    assert main(["sweep", "--schedule", "red-green-red,four-tasks;red:2,green:1", "--reg", "0,1.5",
+                 "--out", str(tmp_path), "--name", "s", "--dry-run"]) == 0
+    names = [line.split()[-1] for line in capsys.readouterr().out.splitlines() if line.startswith("would run")]
+    assert names[:2] == ["red-green-red-reg0", "red-green-red-reg1.5"] and names[-1] == "red-2-green-1-reg1.5"
+    assert main(["sweep", "--seed", "1,x", "--dry-run"]) == 2
+    assert "--seed value 'x'" in capsys.readouterr().err
+    assert main(["sweep", "--seed", "1,1", "--dry-run"]) == 2
+
+
+def _summary(c1: float, r_top: float, complete: bool = True) -> dict:
+    summary = {"phases": ["red", "green", "red"], "current": [5.0, c1, 6.0], "wall_time_s": 1.0,
+               "forgetting": [{"at_end_of": 1, "task": "red", "C": 5.0, "R_pop": r_top + 1, "R_top": r_top,
+                               "F_pop": 0.0, "F_top": 0.0}]}
+    if complete:
+        summary["R_top"] = [[5.0, 0.0, 0.0], [r_top, c1, 0.0], [6.0, 1.0, 6.0]]
+    return summary
+
+
+def test_model_specific_lambda_selection():
+    base = {"algo": "neat", "schedule": "red-green-red", "population": 12, "record": False}
+    runs = []
+    # seed 1: lambda 5 wins on C1 + R_top (4 + 3 = 7 > 6 > 5); seed 2: lambda 0 and 11 tie at 8 -> smaller lambda
+    for seed, reg, c1, r_top in [(1, 0, 5.0, 1.0), (1, 5, 4.0, 3.0), (1, 11, 2.0, 4.0),
+                                 (2, 0, 6.0, 2.0), (2, 5, 3.0, 3.0), (2, 11, 7.0, 1.0)]:
+        runs.append(({**base, "seed": seed, "reg": float(reg), "record": seed == 1}, _summary(c1, r_top),
+                     f"neat-reg{reg}-seed{seed}"))
+    # another configuration (population) with one lambda only: no m.s. row for it
+    runs.append(({**base, "population": 30, "seed": 1, "reg": 0.0}, _summary(9.0, 9.0), "big"))
+    (selection,) = select_model_specific(runs)
+    assert selection["config"]["population"] == 12
+    assert [(c["seed"], c["reg"], c["score"], c["tag"]) for c in selection["choices"]] == \
+        [(1, 5.0, 7.0, "neat-reg5-seed1"), (2, 0.0, 8.0, "neat-reg0-seed2")]
+    # an unfinished run is scored from its forgetting rows; before the end of phase 1 it is not scored
+    assert selection_score(_summary(4.0, 3.0, complete=False)) == 7.0
+    assert selection_score({"phases": ["red"], "current": [5.0], "forgetting": []}) is None
+    # the report: its own row with the lambda per seed, the mean of the chosen runs
+    rows, markdown = model_specific_report([selection], {tag: summary for _, summary, tag in runs},
+                                           [config for config, _, _ in runs])
+    (line,) = [row for row in markdown.splitlines() if row.startswith("| neat reg=m.s.")]
+    assert "| 2 | 1: 5, 2: 0 | 7.50 [7.00, 8.00] |" in line
+    c1 = next(row for row in rows if row["metric"] == "C phase 1 (green)")
+    assert c1["values"] == [4.0, 6.0] and c1["reg"] == "m.s. 5 0" and c1["mean"] == 5.0
