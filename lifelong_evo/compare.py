@@ -166,7 +166,7 @@ def overlay_figures(paths, out: Path) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .plots import _band, _drifts, _save, _shade_phases, stack
+    from .plots import CONFIG_COLOURS, _band, _drifts, _save, _shade_phases, stack
     from .schedule import parse_schedule
 
     runs = [r for r in (load_run(p) for p in find_run_dirs(paths)) if r.metrics]
@@ -176,14 +176,13 @@ def overlay_figures(paths, out: Path) -> list[Path]:
         phases = parse_schedule(str(config.get("schedule")), int(config.get("generations", 0)))
         by_schedule.setdefault(repr([(p.name, p.generations) for p in phases]), []).append(group)
     configs = [g[0].config for groups in by_schedule.values() for g in groups]
-    cycle = plt.get_cmap("tab10")
     written = []
     for index, groups in enumerate(by_schedule.values()):
         fig, ax = plt.subplots(figsize=(10, 5), constrained_layout=True)
         for k, group in enumerate(groups):
             label = f"{describe_config(group[0].config, configs)} (n={len(group)})"
             generations, values = stack(group, "best")
-            _band(ax, generations, values, cycle(k % 10), "-", label)
+            _band(ax, generations, values, CONFIG_COLOURS[k % len(CONFIG_COLOURS)], "-", label)
         _drifts(ax, groups[0][0])
         _shade_phases(ax, groups[0][0])
         schedule = str(groups[0][0].config.get("schedule", ""))
@@ -191,6 +190,7 @@ def overlay_figures(paths, out: Path) -> list[Path]:
                      "mean over seeds, band: min-max; coloured strip: the current task", fontsize=10)
         ax.set_xlabel("generation")
         ax.set_ylabel("fitness (reward per episode)")
+        ax.margins(y=0.08)
         ax.grid(alpha=0.25)
         ax.legend(fontsize=8, loc="best")
         suffix = "" if len(by_schedule) == 1 else f"-{index}-" + re.sub(r"[^A-Za-z0-9]+", "-", schedule).strip("-")

@@ -91,7 +91,7 @@ class RunConfig:
 
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {},
-    "smoke": {"generations": 3, "population": 12, "evals": 2, "retention_every": 2, "checkpoint_every": 2,
+    "smoke": {"generations": 3, "population": 20, "evals": 2, "retention_every": 2, "checkpoint_every": 2,
               "env": {"duration": 60}},
 }
 """``paper``: the paper's protocol. ``smoke``: a run of seconds, for tests and a first look."""

@@ -3,15 +3,16 @@
 For each group of runs that share a configuration (config.json without seed and name):
 
 ``<prefix>-retention-pop.png``  current performance C (solid) and population retention R_pop
-                                 (dashed) per task colour over generations; drifts as dotted lines
+                                 (dashed, dots where measured) per task colour over generations;
+                                 drifts as grey dashed vertical lines
 ``<prefix>-retention-top.png``  the same with the retention of the current top individual
 ``<prefix>-species.png``        NEAT: the number of species over generations
-``<prefix>-lifespans.png``      NEAT: each species' life (birth to extinction) and size, from
-                                 ``species.csv`` (generation, species_id, size)
+``<prefix>-lifespans[-seed<S>].png``  NEAT: each species' life (birth to extinction) and size,
+                                 from ``species.csv`` (generation, species_id, size); one per seed
 
-A group of several seeds is drawn as the mean over seeds with a shaded min-max band (lifespans: the
-first seed). Colours are the task colours. Without ``--out`` a single run's figures go into its run
-directory and several groups' into ``plots/``.
+A group of several seeds is drawn as the mean over seeds with a shaded min-max band. Colours are
+the task colours. Without ``--out`` a single run's figures go into its run directory and several
+groups' into ``plots/``.
 """
 from __future__ import annotations
 
@@ -237,7 +238,7 @@ def _band(ax, generations, values, colour, linestyle, label, marker=None):
 
 def _drifts(ax, run: Run) -> None:
     for i, g in enumerate(drift_generations(run)):
-        ax.axvline(g - 0.5, color="0.35", linestyle=":", linewidth=1.0, label="drift" if i == 0 else None)
+        ax.axvline(g - 0.5, color="0.3", linestyle=(0, (6, 4)), linewidth=1.1, label="drift" if i == 0 else None)
 
 
 def _title(group: list[Run]) -> str:
@@ -283,6 +284,7 @@ def figure_species(group: list[Run], path: Path) -> Path | None:
     _shade_phases(ax, group[0])
     ax.set_xlabel("generation")
     ax.set_ylabel("species")
+    ax.margins(y=0.08)
     ax.yaxis.get_major_locator().set_params(integer=True)
     ax.set_title(f"Number of species\n{_title(group)}", fontsize=10)
     ax.grid(alpha=0.25)
@@ -297,7 +299,7 @@ def _shade_phases(ax, run: Run) -> None:
     start = 0
     for i in range(1, len(tasks) + 1):
         if i == len(tasks) or run.metrics[i]["task_index"] != run.metrics[start]["task_index"]:
-            ax.axvspan(generations[start] - 0.5, generations[i - 1] + 0.5, ymin=0, ymax=0.03,
+            ax.axvspan(generations[start] - 0.5, generations[i - 1] + 0.5, ymin=0, ymax=0.025,
                        color=task_colour(tasks[start]), alpha=0.8, linewidth=0)
             start = i
 
@@ -341,6 +343,11 @@ def figure_lifespans(run: Run, path: Path) -> Path | None:
     return _save(fig, path)
 
 
+CONFIG_COLOURS = ("#1f77b4", "#ff7f0e", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#000000", "#17becf",
+                  "#9467bd", "#d62728", "#2ca02c")
+"""Line colours of configurations in overlays: the first ones avoid the task colours."""
+
+
 def _save(fig, path: Path) -> Path:
     import matplotlib.pyplot as plt
 
@@ -359,8 +366,10 @@ def plot_group(group: list[Run], out: Path, prefix: str) -> list[Path]:
     """Every figure of one configuration's runs; returns the files written."""
     written = [figure_retention(group, "pop", out / f"{prefix}-retention-pop.png"),
                figure_retention(group, "top", out / f"{prefix}-retention-top.png"),
-               figure_species(group, out / f"{prefix}-species.png"),
-               figure_lifespans(group[0], out / f"{prefix}-lifespans.png")]
+               figure_species(group, out / f"{prefix}-species.png")]
+    for run in group:  # lifespans are per run: one figure per seed
+        name = f"{prefix}-lifespans.png" if len(group) == 1 else f"{prefix}-lifespans-seed{run.seed}.png"
+        written.append(figure_lifespans(run, out / name))
     return [path for path in written if path is not None]
 
 

@@ -93,7 +93,7 @@ def _record(run_dir, config, label: str, task_name: str, played, seeds, controll
                 for i, s in enumerate(seeds)]
     recorder = RerunRecorder(path, recording_id=f"{APPLICATION_ID}/{run_dir.path.resolve().name}/{name}",
                              recording_name=f"{run_dir.path.name} {name}", arena_size=config.env_config().size,
-                             blueprint=make_blueprint([], entities, curves=False), mode="file")
+                             blueprint=make_blueprint(entities, curves=False), mode="file")
     try:
         for (entity, _), s, episode in zip(entities, seeds, played):
             recorder.log_episode_at(entity, episode)

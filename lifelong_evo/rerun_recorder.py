@@ -11,6 +11,7 @@ What is recorded (application id ``lifelong_evo``, recording id ``lifelong_evo/<
   ``curves/species``                                   NEAT's species count
   ``curves/extra/<name>``                              the optimiser's extra scalars (e.g. ES sigma)
   ``log``                                              a text entry at each drift and task end
+  (a NaN point at a drift ends the line of each series that pauses there)
 ``step`` timeline, episodes of each task end's top individual on every task seen so far, under
 ``episodes/gen<G>_<phase task>/on_<task>/``: ``arena`` and ``drop_zone`` (static outlines),
 ``boxes`` (present boxes in their colour, logged at the steps where they change), ``agents``
@@ -37,6 +38,7 @@ with ``rerun``) at ``rerun+http://127.0.0.1:9876/proxy`` or at ``LIFELONG_EVO_RE
 """
 from __future__ import annotations
 
+import math
 import os
 import re
 import time
@@ -95,7 +97,7 @@ def expected_episode_paths(config) -> list[tuple[str, str]]:
     return paths
 
 
-def make_blueprint(task_names: list[str], episodes: list[tuple[str, str]], curves: bool = True):
+def make_blueprint(episodes: list[tuple[str, str]], curves: bool = True):
     """Curves on the left (current performance above, retention/regularised/species in tabs),
     the arena on the right (one tab per episode, cumulative reward below), the text log below."""
     import rerun.blueprint as rrb
@@ -103,8 +105,8 @@ def make_blueprint(task_names: list[str], episodes: list[tuple[str, str]], curve
     arenas = [rrb.Spatial2DView(origin=path, name=name, background=FLOOR_RGB) for path, name in episodes]
     if not arenas:
         arenas = [rrb.Spatial2DView(origin="episodes", name="arena (no episode yet)", background=FLOOR_RGB)]
-    reward = rrb.TimeSeriesView(origin="episodes", contents=["+ /episodes/**/reward"],
-                                name="episode reward (step timeline)")
+    reward = rrb.TimeSeriesView(origin="/", contents=[f"+ /{path}/reward" for path, _ in episodes] or
+                                ["+ /episodes/**/reward"], name="cumulative episode reward (step timeline)")
     right = rrb.Vertical(rrb.Tabs(*arenas), reward, row_shares=[3, 1])
     parts = []
     if curves:
@@ -156,10 +158,9 @@ class RerunRecorder(Recorder):
             if checkpoint is not None:
                 generation = int(re.sub(r"\D", "", checkpoint.stem) or 0)
                 path = run_dir.path / f"recording-resumed-{generation:06d}.rrd"
-        task_names = list(dict.fromkeys(p.name for p in config.phases()))
         return cls(path, recording_id=f"{APPLICATION_ID}/{name}", recording_name=name,
                    arena_size=config.env_config().size,
-                   blueprint=make_blueprint(task_names, expected_episode_paths(config)), mode=sink_mode())
+                   blueprint=make_blueprint(expected_episode_paths(config)), mode=sink_mode())
 
     # -- stream ---------------------------------------------------------------------------------
 
@@ -228,10 +229,11 @@ class RerunRecorder(Recorder):
         task = row["task"]
         colour = task_rgb(task)
         light = tuple(int(c + (255 - c) * 0.45) for c in colour)
-        self._scalar(generation, f"curves/current/{task}/best", row.get("best"), colour, f"{task} best", 2.0)
-        self._scalar(generation, f"curves/current/{task}/mean", row.get("mean"), light, f"{task} mean", 1.0)
-        self._scalar(generation, f"curves/regularised/{task}/best", row.get("reg_best"), colour, f"{task} regularised best", 2.0)
-        self._scalar(generation, f"curves/regularised/{task}/mean", row.get("reg_mean"), light, f"{task} regularised mean", 1.0)
+        for kind, prefix, label in (("current", "", ""), ("regularised", "reg_", " regularised")):
+            self._scalar(generation, f"curves/{kind}/{task}/best", row.get(f"{prefix}best"), colour,
+                         f"{task}{label} best", 2.0)
+            self._scalar(generation, f"curves/{kind}/{task}/mean", row.get(f"{prefix}mean"), light,
+                         f"{task}{label} mean", 1.0)
         if "centre" in row:
             self._scalar(generation, f"curves/centre/{task}", row["centre"], colour, f"{task} centre", 1.5)
         if "species" in row:
@@ -251,6 +253,15 @@ class RerunRecorder(Recorder):
             self.flush_curves()
 
     def log_drift(self, generation: int, previous: str, task: str) -> None:
+        # a NaN breaks the line of each series that pauses here (the previous task's current
+        # performance, the new task's retention), so that the viewer does not join its phases
+        pausing = [f"curves/{kind}/{previous}/{stat}" for kind in ("current", "regularised")
+                   for stat in ("best", "mean")]
+        pausing += [f"curves/centre/{previous}"]
+        pausing += [f"curves/retention_{level}/{task}" for level in ("pop", "top", "centre")]
+        for entity in pausing:
+            if entity in self._styled:
+                self._pending.setdefault(entity, []).append((generation, math.nan))
         self.text(generation, f"generation {generation}: drift {previous} -> {task}", level="WARN")
 
     def log_episode(self, generation: int, phase_index: int, phase_task: str, task, episode: Episode) -> None:

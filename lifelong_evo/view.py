@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -42,6 +43,17 @@ def recording_files(target: str | Path, replays: bool = False) -> list[Path]:
 
 
 def rerun_executable() -> str:
+    """The viewer binary: the one rerun-sdk bundles (so that stopping ``view`` stops the viewer,
+    which the ``rerun`` wrapper script would leave running), else ``rerun`` on the PATH."""
+    import importlib.util
+
+    if os.environ.get("RERUN_CLI_PATH"):
+        return os.environ["RERUN_CLI_PATH"]
+    spec = importlib.util.find_spec("rerun_cli")
+    if spec is not None and spec.origin:
+        bundled = Path(spec.origin).parent / ("rerun.exe" if sys.platform.startswith("win") else "rerun")
+        if bundled.is_file() and sys.platform != "darwin":
+            return str(bundled)
     beside = Path(sys.executable).parent / "rerun"
     found = str(beside) if beside.is_file() else shutil.which("rerun")
     if not found:
@@ -66,12 +78,17 @@ def build_command(files: list[Path], web: bool, port: int, grpc_port: int) -> tu
              *map(str, files)], web_url(port, grpc_port))
 
 
+def _stop(signum, frame):
+    raise KeyboardInterrupt
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", metavar="RUN", help="run directory or .rrd file")
     parser.add_argument("--web", action="store_true",
                         help="serve the web viewer on 127.0.0.1 (the default where no display exists)")
     parser.add_argument("--port", type=int, default=9090, help="web viewer HTTP port (default: 9090)")
-    parser.add_argument("--grpc-port", type=int, default=9876, help="port the web viewer reads data from (default: 9876)")
+    parser.add_argument("--grpc-port", type=int, default=9876,
+                        help="port the web viewer reads data from (default: 9876)")
     parser.add_argument("--replays", action="store_true", help="also open the run's replay-*.rrd recordings")
 
 
@@ -82,7 +99,13 @@ def main(args: argparse.Namespace) -> int:
     print("opening " + ", ".join(map(str, files)))
     if url:
         print(f"web viewer: {url}  (serving on {HOST} only; Ctrl-C stops it)", flush=True)
+    process = subprocess.Popen(command)
+    signal.signal(signal.SIGTERM, _stop)  # so that `finally` stops the viewer on kill too
     try:
-        return subprocess.call(command)
+        return process.wait()
     except KeyboardInterrupt:
         return 0
+    finally:
+        if process.poll() is None:
+            process.terminate()
+            process.wait()

@@ -96,7 +96,7 @@ def test_metrics_are_consistent(smoke_runs, algo):
         for row in rows:
             alive = [s for s in species if s["generation"] == row["generation"]]
             assert len(alive) == int(row["species"])
-            assert sum(int(s["size"]) for s in alive) == 12
+            assert sum(int(s["size"]) for s in alive) == 20
 
 
 def test_same_seed_same_numbers(smoke_runs, tmp_path):
