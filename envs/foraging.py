@@ -156,17 +156,22 @@ class _BoxKeys:
         self.index_bits = max(1, (n_candidates - 1).bit_length())
         self.index_mask = (1 << self.index_bits) - 1
         self.cap = cap
-        self.absent = 1 << 30                       # above every present key (bit 31 is the sign)
+        self.absent = 1 << 30                       # the absent bit: above every present key
         room = (self.absent >> self.index_bits) - 1  # the largest fixed-point distance that fits
         self.scale = float(2 ** math.floor(math.log2(room / cap)))
         self.resolution = 1.0 / self.scale
 
     def keys(self, dist: torch.Tensor, absent: torch.Tensor) -> torch.Tensor:
-        """``dist``: (N, A, B); ``absent``: (N, 1, B) bool. Returns (N, A, B) int32 keys."""
-        fixed = torch.addcmul(dist.clamp(max=self.cap) * self.scale, absent.to(dist.dtype),
-                              torch.tensor(float(self.absent >> self.index_bits), dtype=dist.dtype))
-        position = torch.arange(dist.shape[0], dtype=torch.int32, device=dist.device)[:, None, None]
-        return (fixed.to(torch.int32) << self.index_bits) | position
+        """``dist``: (N, A, B); ``absent``: bool, broadcastable to it (usually (N, 1, B)).
+        Returns (N, A, B) int32 keys."""
+        position = torch.arange(dist.shape[0], dtype=torch.int32, device=dist.device)
+        tag = position.view(-1, *([1] * (absent.dim() - 1))) | (absent.to(torch.int32) << 30)
+        fixed = (dist.clamp(max=self.cap) * self.scale).to(torch.int32)
+        return (fixed << self.index_bits) | tag
+
+    def remove(self, keys: torch.Tensor, gone: torch.Tensor) -> torch.Tensor:
+        """Mark the candidates in ``gone`` ((N, B) bool) absent."""
+        return keys | (gone.to(torch.int32) << 30)[:, None]
 
     def index(self, key: torch.Tensor) -> torch.Tensor:
         return (key & self.index_mask).long()
@@ -221,6 +226,7 @@ class ForagingEnv:
         self._box_keys = _BoxKeys(n_others, cap=max(c.sensor_range, c.sensitivity) + 0.5)
         self._slot_bits = (4 + c.n_neighbors - 1).bit_length()  # walls + nearest others, merged
         self._arena: _Arena | None = None
+        self._columns = torch.arange(batch_size, device=self.device)
 
     # ------------------------------------------------------------------ tasks and reset
     def task_tensors(self, tasks: Task | Sequence[Task], n: int | None = None):
@@ -389,15 +395,16 @@ class ForagingEnv:
         turn = torch.rad2deg(velocity[2] * (moving / WHEEL_RADIUS_FACTOR))
         heading = torch.remainder(a.heading + turn, 360.0)
         # 2. distances from the new positions
-        dx, dy, dist = self._box_offsets(ax, ay, a.bx, a.by)                              # (K, A, B)
+        dist = _distance(ax[None] - a.bx[:, None], ay[None] - a.by[:, None])              # (K, A, B)
         keys = self._box_keys.keys(dist, ~a.present[:, None])
         # 3. picks (agents in index order), then drops
-        picked = self._resolve_picks(keys, dist, a, active)
+        picked = self._resolve_picks(keys, ax, ay, a, active)
         picking = picked >= 0
         present = a.present
         if picking.any():
-            present = present & ~self._box_flags(picked)
-            keys = self._box_keys.keys(dist, ~present[:, None])
+            taken = self._box_flags(picked)
+            present = present & ~taken
+            keys = self._box_keys.remove(keys, taken)
         carrying = torch.where(picking, picked, a.carrying)
         is_target = a.color.gather(0, carrying.clamp(min=0)) == a.target
         dropping = (carrying >= 0) & (ax < 1) & active
@@ -406,7 +413,7 @@ class ForagingEnv:
         dropped = torch.where(dropping, carrying, -1)
         carrying = torch.where(dropping, -1, carrying)
         # 4. sensing; a box dropped this step stays absent until the next one
-        observations = self._observe(ax, ay, heading, carrying, dx, dy, dist, keys, present, a.color, a.target)
+        observations = self._observe(ax, ay, heading, carrying, keys, present, a)
         bx, by = a.bx, a.by
         respawn = torch.full((c.n_agents, a.ax.shape[1], 2), -1, dtype=torch.long, device=self.device)
         if c.repositioning and dropping.any():
@@ -423,13 +430,7 @@ class ForagingEnv:
                 "terminated": retrieved >= c.max_retrieves, "truncated": steps >= c.duration}
         return observations, reward.to(self.dtype), done, info
 
-    @staticmethod
-    def _box_offsets(ax, ay, bx, by):
-        """Agent-minus-box offsets and distances, each ``(K, A, B)``."""
-        dx, dy = ax[None] - bx[:, None], ay[None] - by[:, None]
-        return dx, dy, torch.sqrt(dx * dx + dy * dy)
-
-    def _resolve_picks(self, keys, dist, a: _Arena, active) -> torch.Tensor:
+    def _resolve_picks(self, keys, ax, ay, a: _Arena, active) -> torch.Tensor:
         """Box index each agent picks this step, -1 for none: ``(A, B)``.
 
         Sequential semantics (agents in index order, each taking its nearest present box,
@@ -439,8 +440,9 @@ class ForagingEnv:
         """
         c = self.config
         nearest_key = keys.amin(dim=0)                                                     # (A, B)
-        nearest = self._box_keys.index(nearest_key)
-        near_dist = dist.gather(0, nearest[None])[0]
+        nearest = self._box_keys.index(nearest_key).clamp(max=c.n_boxes - 1)
+        flat = nearest * ax.shape[1] + self._columns
+        near_dist = _distance(ax - a.bx.take(flat), ay - a.by.take(flat))
         wants = (a.carrying < 0) & ~self._box_keys.is_absent(nearest_key) & (near_dist < c.sensitivity) & active
         picks = torch.full_like(a.carrying, -1)
         if not wants.any():
@@ -476,32 +478,31 @@ class ForagingEnv:
     # ------------------------------------------------------------------ sensing
     def _observe_arena(self) -> torch.Tensor:
         a = self._arena
-        dx, dy, dist = self._box_offsets(a.ax, a.ay, a.bx, a.by)
-        keys = self._box_keys.keys(dist, ~a.present[:, None])
-        return self._observe(a.ax, a.ay, a.heading, a.carrying, dx, dy, dist, keys, a.present, a.color, a.target)
+        keys = self._box_keys.keys(_distance(a.ax[None] - a.bx[:, None], a.ay[None] - a.by[:, None]),
+                                   ~a.present[:, None])
+        return self._observe(a.ax, a.ay, a.heading, a.carrying, keys, a.present, a)
 
-    def _observe(self, ax, ay, heading, carrying, dx, dy, dist, keys, present, color, target) -> torch.Tensor:
-        """Observation vectors ``(B, A, obs_dim)`` in the spec's order.
-
-        ``dx, dy, dist, keys``: ``(K, A, B)`` agent-minus-box offsets, distances and order keys.
-        """
+    def _observe(self, ax, ay, heading, carrying, keys, present, a: _Arena) -> torch.Tensor:
+        """Observation vectors ``(B, A, obs_dim)`` in the spec's order; ``keys``: the boxes'
+        ``(K, A, B)`` order keys with the absent ones marked."""
         c = self.config
         n, rng = c.n_neighbors, c.sensor_range
         A, B = ax.shape
-        kinds = color[:, None].expand(-1, A, -1)                                          # (K, A, B)
+        ex, ey, kind = a.bx, a.by, a.color                                                # (N, B) candidates
         if c.see_other_agents:  # other agents come before boxes in the candidate order
-            adx, ady, adist = self._box_offsets(ax, ay, ax, ay)                            # (A other, A, B)
-            is_self = torch.eye(A, dtype=torch.bool, device=self.device)[..., None]
-            dx, dy, dist = torch.cat((adx, dx)), torch.cat((ady, dy)), torch.cat((adist, dist))
-            keys = self._box_keys.keys(dist, torch.cat((is_self.expand(A, A, B), ~present[:, None].expand(-1, A, -1))))
-            kinds = torch.cat((torch.full((A, A, B), AGENT, device=self.device, dtype=torch.long), kinds))
+            ex, ey = torch.cat((ax, ex)), torch.cat((ay, ey))
+            kind = torch.cat((torch.full((A, B), AGENT, device=self.device, dtype=torch.long), kind))
+            is_self = torch.eye(A, dtype=torch.bool, device=self.device)[..., None].expand(A, A, B)
+            agent_keys = self._box_keys.keys(_distance(ax[None] - ax[:, None], ay[None] - ay[:, None]), is_self)
+            keys = torch.cat((agent_keys, keys + A))  # box positions follow the agents'
         # the nearest n sensed entities other than walls
         best = [keys.amin(dim=0)]
         for _ in range(n - 1):
             best.append(self._box_keys.next_min(keys, best[-1]))
         best = torch.stack(best)                                                           # (n, A, B)
-        idx = self._box_keys.index(best).clamp(max=dist.shape[0] - 1)
-        o_dist = dist.gather(0, idx)
+        flat = self._box_keys.index(best).clamp(max=ex.shape[0] - 1) * B + self._columns
+        o_dx, o_dy = ax - ex.take(flat), ay - ey.take(flat)
+        o_dist = _distance(o_dx, o_dy)
         o_seen = ~self._box_keys.is_absent(best) & (o_dist <= rng)
         # merged with the walls (strictly in range): stable, so walls win equal distances
         wall = torch.stack((ax, c.size - ax - 1, ay, c.size - ay - 1))                      # (4, A, B)
@@ -517,18 +518,18 @@ class ForagingEnv:
         s_dist = cand_dist.gather(0, pick)
         seen = s_dist < _UNSEEN
         is_wall = pick < 4
-        o_idx = idx.gather(0, (pick - 4).clamp(min=0))
-        g_dx, g_dy, g_dist = dx.gather(0, o_idx), dy.gather(0, o_idx), dist.gather(0, o_idx)
+        other = (pick - 4).clamp(min=0)
+        g_dx, g_dy = o_dx.gather(0, other), o_dy.gather(0, other)
         # sin and cos of atan2(dy, dx) are dy/d and dx/d; an entity on the agent reads angle 0
-        on_top = g_dist == 0
-        safe = torch.where(on_top, 1.0, g_dist)
+        on_top = s_dist == 0
+        safe = torch.where(on_top, 1.0, s_dist)
         zero = torch.zeros((), dtype=self.dtype, device=self.device)
         wall_pick = pick.clamp(max=3)
         s_sin = torch.where(is_wall, self._wall_sin[wall_pick], torch.where(on_top, zero, g_dy / safe))
         s_cos = torch.where(is_wall, self._wall_cos[wall_pick], torch.where(on_top, 1.0, g_dx / safe))
-        s_kind = torch.where(seen, torch.where(is_wall, WALL, kinds.gather(0, o_idx)), 0)
+        s_kind = torch.where(seen, torch.where(is_wall, WALL, kind.take(flat).gather(0, other)), 0)
         heading_rad = torch.deg2rad(heading)
-        carried = torch.where(carrying >= 0, color.gather(0, carrying.clamp(min=0)) - 2, 0)  # (A, B)
+        carried = torch.where(carrying >= 0, a.color.gather(0, carrying.clamp(min=0)) - 2, 0)  # (A, B)
         parts = torch.cat((
             (s_kind[:, None] == self._types).to(self.dtype).reshape(n * c.n_types, A, B),
             torch.where(seen, s_dist, zero) / rng,
@@ -536,9 +537,15 @@ class ForagingEnv:
             torch.where(seen, s_cos, zero),
             torch.sin(heading_rad)[None], torch.cos(heading_rad)[None],
             (carried[None] == self._carry_ids).to(self.dtype),
-            (target == self._colour_ids)[:, None].to(self.dtype).expand(-1, A, -1),
+            (a.target == self._colour_ids)[:, None].to(self.dtype).expand(-1, A, -1),
         ))                                                                                 # (obs_dim, A, B)
         return parts.permute(2, 1, 0).contiguous()
+
+
+def _distance(dx: torch.Tensor, dy: torch.Tensor) -> torch.Tensor:
+    """Euclidean distance; every distance of the env goes through here, so equal inputs give
+    equal floats wherever they are computed."""
+    return torch.sqrt(dx * dx + dy * dy)
 
 
 _UNSEEN = 1e30   # distance of an empty candidate: finite, so that its bit key stays a number
