@@ -1,0 +1,306 @@
+"""NeatOptimizer: the paper's configuration, determinism, the regulariser, checkpoints."""
+from __future__ import annotations
+
+import json
+import pickle
+import random
+
+import neat
+import pytest
+import torch
+
+from algorithms.base import GenerationReport
+from algorithms.neat_network import build_neat_config
+from algorithms.neat_optimizer import NeatOptimizer
+
+POP = 40
+
+
+def _signature(g):
+    """Everything heritable about a genome, plus its key."""
+    nodes = tuple((k, n.bias, n.response, n.activation, n.aggregation)
+                  for k, n in sorted(g.nodes.items()))
+    conns = tuple((k, c.weight, c.enabled, c.innovation)
+                  for k, c in sorted(g.connections.items()))
+    return g.key, nodes, conns
+
+
+def _population(opt):
+    return [_signature(opt.population[k]) for k in sorted(opt.population)]
+
+
+def _obs(pop, seed=0, n=41):
+    gen = torch.Generator().manual_seed(seed)
+    return torch.rand(pop, 2, 3, n, generator=gen) * 2 - 1
+
+
+def _fitness(policy, obs):
+    """Deterministic synthetic fitness: a function of each genome's outputs."""
+    out = policy(obs).double()
+    return out[..., 0].sum(dim=(1, 2)) - out[..., 1].sum(dim=(1, 2)) + 0.3 * out[..., 2].mean(dim=(1, 2))
+
+
+def _generation(opt, obs, bonus=None):
+    policy = opt.ask()
+    raw = _fitness(policy, obs)
+    selection = opt.regularise(raw)
+    if bonus is not None:
+        selection = selection + bonus
+    return raw, selection, opt.tell(raw, selection)
+
+
+@pytest.fixture(autouse=True)
+def _keep_global_random():
+    state = random.getstate()
+    yield
+    random.setstate(state)
+
+
+def test_config_is_the_papers_table():
+    opt = NeatOptimizer(obs_dim=41, population_size=300, seed=1)
+    c = opt.config
+    g = c.genome_config
+    assert (c.pop_size, c.fitness_criterion, c.no_fitness_termination) == (300, "max", True)
+    assert (g.num_inputs, g.num_outputs, g.num_hidden, g.feed_forward) == (41, 3, 1, True)
+    assert (g.initial_connection, g.connection_fraction) == ("partial_direct", 0.5)
+    assert (g.compatibility_disjoint_coefficient, g.compatibility_weight_coefficient) == (1.0, 0.6)
+    assert (g.conn_add_prob, g.conn_delete_prob, g.node_add_prob, g.node_delete_prob) == (
+        0.2, 0.2, 0.2, 0.2)
+    assert (g.activation_default, g.activation_options, g.activation_mutate_rate) == (
+        "neat_sigmoid", ["neat_sigmoid"], 0.0)
+    assert (g.aggregation_default, g.aggregation_options, g.aggregation_mutate_rate) == (
+        "sum", ["sum"], 0.0)
+    assert (g.bias_init_mean, g.bias_init_stdev, g.bias_replace_rate, g.bias_mutate_rate,
+            g.bias_mutate_power, g.bias_min_value, g.bias_max_value) == (
+        0.0, 1.0, 0.1, 0.7, 0.5, -5.0, 5.0)
+    assert (g.response_init_mean, g.response_init_stdev, g.response_mutate_rate,
+            g.response_replace_rate, g.response_min_value, g.response_max_value) == (
+        1.0, 0.0, 0.0, 0.0, -5.0, 5.0)
+    assert (g.weight_init_mean, g.weight_init_stdev, g.weight_mutate_rate, g.weight_replace_rate,
+            g.weight_mutate_power, g.weight_min_value, g.weight_max_value) == (
+        0.0, 1.0, 0.8, 0.1, 1.0, -5.0, 5.0)
+    assert (str(g.enabled_default).lower(), g.enabled_mutate_rate) == ("true", 0.01)
+    assert c.species_set_config.compatibility_threshold == 3.0
+    s = c.stagnation_config
+    assert (s.species_fitness_func, s.max_stagnation, s.species_elitism) == ("max", 20, 1)
+    r = c.reproduction_config
+    assert (r.elitism, r.survival_threshold) == (5, 0.2)
+    # the initial population: one hidden node, about half of the possible connections
+    assert opt.population_size == 300 and len(opt.population) == 300
+    for genome in opt.population.values():
+        assert sorted(genome.nodes)[:3] == [0, 1, 2] and len(genome.nodes) == 4
+        assert len(genome.connections) == round(0.5 * (41 * 1 + 1 * 3 + 41 * 3))
+    assert NeatOptimizer(obs_dim=61, population_size=20, seed=1).config.genome_config.num_inputs == 61
+
+
+def test_same_seed_same_genomes_and_global_random_untouched():
+    obs = _obs(POP)
+    a = NeatOptimizer(obs_dim=41, population_size=POP, seed=3)
+    b = NeatOptimizer(obs_dim=41, population_size=POP, seed=3)
+    c = NeatOptimizer(obs_dim=41, population_size=POP, seed=4)
+    assert _population(a) == _population(b) != _population(c)
+    for _ in range(3):
+        random.seed(12345)
+        outer = random.getstate()
+        _generation(a, obs)
+        assert random.getstate() == outer  # neat-python ran on the optimiser's own stream
+        random.random()  # someone else drawing in between changes nothing
+        _generation(b, obs)
+        _generation(c, obs)
+    assert a.generation == b.generation == 3
+    assert _population(a) == _population(b) != _population(c)
+    assert _population(a) != [_signature(g) for g in NeatOptimizer(
+        obs_dim=41, population_size=POP, seed=3).population.values()]  # it did evolve
+
+
+def test_mirrors_neat_population_run():
+    """Same seed, same fitness: the optimiser's generations are neat-python's own."""
+    probe = [((i * 7) % 5) / 4 - 0.5 for i in range(41)]
+
+    def score(genome, config):
+        out = neat.nn.FeedForwardNetwork.create(genome, config).activate(probe)
+        return out[0] - out[1] + 0.01 * len(genome.connections)
+
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=11, unconnected_outputs="bias")
+    for _ in range(5):
+        opt.ask()
+        f = torch.tensor([score(g, opt.config) for g in opt.asked_genomes], dtype=torch.float64)
+        opt.tell(f, f)
+
+    def evaluate(genomes, config):
+        for _key, g in genomes:
+            g.fitness = score(g, config)
+
+    reference = neat.Population(build_neat_config(41, POP), seed=11)
+    reference.run(evaluate, 5)
+    assert reference.generation == opt.generation == 5
+    assert _population(opt) == [_signature(reference.population[k])
+                                for k in sorted(reference.population)]
+    assert ({sid: sorted(s.members) for sid, s in opt.species.species.items()}
+            == {sid: sorted(s.members) for sid, s in reference.species.species.items()})
+    assert opt.best_genome.key == reference.best_genome.key
+
+
+def test_ask_tell_report_and_errors():
+    obs = _obs(POP)
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=5)
+    with pytest.raises(RuntimeError):
+        opt.tell(torch.zeros(POP), torch.zeros(POP))
+    for _ in range(4):
+        policy = opt.ask()
+        assert opt.ask() is policy  # one compile per generation
+        assert policy.population_size == POP
+        assert list(policy.genome_keys) == sorted(opt.population)
+        evaluated = {sid: len(s.members) for sid, s in opt.species.species.items()}
+        raw, selection, report = _generation(opt, obs)
+        assert isinstance(report, GenerationReport) and report.extra == {}
+        assert report.species_sizes == evaluated
+        assert sum(report.species_sizes.values()) == POP
+        assert len(opt.population) == POP
+    policy = opt.ask()
+    with pytest.raises(ValueError):
+        opt.tell(torch.zeros(POP - 1), torch.zeros(POP - 1))
+    with pytest.raises(ValueError):
+        opt.tell(torch.full((POP,), float("nan")), torch.zeros(POP))
+    with pytest.raises(ValueError):
+        NeatOptimizer(obs_dim=41, population_size=POP, seed=0, unconnected_outputs="x")
+    with pytest.raises(ValueError):
+        NeatOptimizer(obs_dim=41, population_size=POP, seed=0, references=0)
+
+
+def test_raw_and_selection_fitness_are_kept_apart():
+    obs = _obs(POP)
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=6)
+    opt.ask()
+    genomes = list(opt.asked_genomes)
+    raw = torch.arange(POP, dtype=torch.float64)
+    selection = -raw
+    opt.tell(raw, selection)
+    assert [g.raw_fitness for g in genomes] == raw.tolist()
+    assert [g.fitness for g in genomes] == selection.tolist()
+    assert opt.task_best.key == genomes[0].key and opt.task_best.fitness == 0.0
+
+
+def test_reference_is_the_task_best_by_selection_fitness():
+    obs = _obs(POP, seed=1)
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=7, regularization=2.5)
+    _generation(opt, obs)
+    # generation 1: genome 11 gets the best selection fitness of the task (not the best raw)
+    opt.ask()
+    star = opt.asked_genomes[11]
+    star_signature = _signature(star)
+    bonus = torch.zeros(POP, dtype=torch.float64)
+    bonus[11] = 100.0
+    raw, selection, _ = _generation(opt, obs, bonus)
+    star_fitness = float(selection[11])
+    assert opt.population.get(star.key) is star  # an elite, so it is evaluated again...
+    _generation(opt, obs)
+    assert star.fitness != star_fitness  # ...and neat-python overwrites its fitness
+    _generation(opt, obs)
+    assert opt.task_best.fitness == star_fitness  # the task best is a frozen copy
+    assert _signature(opt.task_best) == star_signature
+    assert opt.task_best is not star
+
+    # no penalty before the first end_task, whatever lambda
+    raw = _fitness(opt.ask(), obs)
+    assert torch.equal(opt.regularise(raw), raw)
+
+    opt.end_task()
+    assert opt.task_best is None and len(opt.reference_genomes) == 1
+    reference = opt.reference_genomes[0]
+    gc = opt.config.genome_config
+    expected = torch.tensor([raw_i - 2.5 * reference.distance(g, gc)
+                             for raw_i, g in zip(raw.tolist(), opt.asked_genomes)],
+                            dtype=torch.float64)
+    got = opt.regularise(raw)
+    assert got.dtype == raw.dtype
+    assert torch.allclose(got, expected, atol=1e-12, rtol=0)
+    assert int((got < raw).sum()) >= POP - 5  # almost everyone is penalised
+    assert opt.regularise(raw.float()).dtype == torch.float32
+
+    # next task: its best (an elite, so unchanged in the next population) has no penalty
+    bonus = torch.zeros(POP, dtype=torch.float64)
+    bonus[5] = 1000.0
+    star2 = opt.asked_genomes[5]
+    opt.tell(raw, got + bonus)
+    opt.end_task()
+    assert _signature(opt.reference_genomes[-1]) == _signature(star2)
+    raw = _fitness(opt.ask(), obs)
+    got = opt.regularise(raw)
+    mine = [i for i, g in enumerate(opt.asked_genomes) if g is star2]
+    assert len(mine) == 1 and got[mine[0]] == raw[mine[0]]
+    assert int((got < raw).sum()) >= POP - 6
+
+
+def test_penalty_averages_the_last_references():
+    obs = _obs(POP, seed=2)
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=8, regularization=1.0, references=2)
+    for _task in range(3):
+        for _ in range(2):
+            _generation(opt, obs)
+        opt.end_task()
+    assert len(opt.reference_genomes) == 3
+    raw = _fitness(opt.ask(), obs)
+    gc = opt.config.genome_config
+    last_two = opt.reference_genomes[-2:]
+    expected = torch.tensor([r - sum(ref.distance(g, gc) for ref in last_two) / 2
+                             for r, g in zip(raw.tolist(), opt.asked_genomes)], dtype=torch.float64)
+    assert torch.allclose(opt.regularise(raw), expected, atol=1e-12, rtol=0)
+    only_last = torch.tensor([r - opt.reference_genomes[-1].distance(g, gc)
+                              for r, g in zip(raw.tolist(), opt.asked_genomes)], dtype=torch.float64)
+    assert not torch.allclose(opt.regularise(raw), only_last)
+
+    off = NeatOptimizer(obs_dim=41, population_size=POP, seed=8, regularization=0.0)
+    _generation(off, obs)
+    off.end_task()
+    raw = _fitness(off.ask(), obs)
+    assert torch.equal(off.regularise(raw), raw)
+
+
+def test_state_dict_round_trip_continues_identically():
+    obs = _obs(POP, seed=3)
+    a = NeatOptimizer(obs_dim=41, population_size=POP, seed=9, regularization=1.5)
+    for _ in range(2):
+        _generation(a, obs)
+    a.end_task()
+    _generation(a, obs)
+    a.ask()
+    state = pickle.loads(pickle.dumps(a.state_dict()))  # as a checkpoint file would
+    assert isinstance(state["pickle"], bytes)
+    assert a.state_dict()["generation"] == 3  # saving twice changes nothing either
+
+    b = NeatOptimizer(obs_dim=41, population_size=POP, seed=1234, regularization=1.5)
+    b.load_state_dict(state)
+    assert b.generation == a.generation == 3
+    assert [_signature(g) for g in b.asked_genomes] == [_signature(g) for g in a.asked_genomes]
+    for step in range(4):
+        if step == 2:
+            a.end_task()
+            b.end_task()
+        ra, sa, rep_a = _generation(a, obs)
+        rb, sb, rep_b = _generation(b, obs)
+        assert torch.equal(ra, rb) and torch.equal(sa, sb)
+        assert rep_a.species_sizes == rep_b.species_sizes
+        assert _population(a) == _population(b)
+    ia = a.reproduction.innovation_tracker.global_counter
+    assert ia == b.reproduction.innovation_tracker.global_counter
+    assert next(a.config.genome_config.node_indexer) == next(b.config.genome_config.node_indexer)
+
+    with pytest.raises(ValueError):
+        NeatOptimizer(obs_dim=61, population_size=POP, seed=0).load_state_dict(state)
+
+
+def test_export_is_json():
+    obs = _obs(POP, seed=4)
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=10)
+    for _ in range(3):
+        _generation(opt, obs)
+    policy = opt.ask()
+    for index in (0, POP - 1):
+        data = json.loads(json.dumps(opt.export(index)))
+        genome = opt.asked_genomes[index]
+        assert data["genome_key"] == genome.key and data["unconnected_outputs"] == "zero"
+        assert len(data["genome"]["nodes"]) == len(genome.nodes)
+        assert len(data["genome"]["connections"]) == len(genome.connections)
+        assert data["network"]["network_type"] == "feedforward"
+        assert data["zero_outputs"] == [i for i in range(3) if policy.zero_outputs[index, i]]
