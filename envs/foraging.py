@@ -152,10 +152,11 @@ class _BoxKeys:
     than ``resolution`` (2**-22, about 2.4e-7 units, for the paper's arena) also count as tied.
     """
 
-    def __init__(self, n_candidates: int, cap: float):
+    def __init__(self, n_candidates: int, cap: float, offset: float = 0.0):
         self.index_bits = max(1, (n_candidates - 1).bit_length())
         self.index_mask = (1 << self.index_bits) - 1
-        self.cap = cap
+        self.offset = offset  # added to every distance first, so that the walls' (>= -1) are >= 0
+        self.cap = cap + offset
         self.absent = 1 << 30                       # the absent bit: above every present key
         room = (self.absent >> self.index_bits) - 1  # the largest fixed-point distance that fits
         self.scale = float(2 ** math.floor(math.log2(room / cap)))
@@ -166,7 +167,9 @@ class _BoxKeys:
         Returns (N, A, B) int32 keys."""
         position = torch.arange(dist.shape[0], dtype=torch.int32, device=dist.device)
         tag = position.view(-1, *([1] * (absent.dim() - 1))) | (absent.to(torch.int32) << 30)
-        fixed = (dist.clamp(max=self.cap) * self.scale).to(torch.int32)
+        if self.offset:
+            dist = dist + self.offset
+        fixed = (dist.clamp(min=0.0, max=self.cap) * self.scale).to(torch.int32)
         return (fixed << self.index_bits) | tag
 
     def remove(self, keys: torch.Tensor, gone: torch.Tensor) -> torch.Tensor:
@@ -185,15 +188,8 @@ class _BoxKeys:
         sign flip, so one ``amin`` suffices (no masked copy)."""
         shifted = (keys - (previous + 1)) ^ torch.iinfo(torch.int32).min
         found = (shifted.amin(dim=0) ^ torch.iinfo(torch.int32).min) + previous + 1
-        return torch.where(found > previous, found, torch.iinfo(torch.int32).max)  # none left: absent
-
-
-def _float_order_keys(values: torch.Tensor, index_bits: int) -> torch.Tensor:
-    """float64 keys ordering like ``(value, position along dim 0)`` for values >= 0."""
-    bits = values.double().view(torch.int64)
-    position = torch.arange(values.shape[0], device=values.device, dtype=torch.int64)
-    position = position.view(-1, *([1] * (values.dim() - 1)))
-    return ((bits & ~((1 << index_bits) - 1)) | position).view(torch.float64)
+        # none left above ``previous``: the wrap-around gives ``previous`` back; mark it absent
+        return found | ((found <= previous).to(torch.int32) << 30)
 
 
 class ForagingEnv:
@@ -219,12 +215,13 @@ class ForagingEnv:
         # sin and cos of the wall directions 0, 180, 90, 270 degrees (top, bottom, left, right)
         self._wall_sin = torch.tensor([0.0, 0.0, 1.0, -1.0], dtype=dtype, device=self.device)
         self._wall_cos = torch.tensor([1.0, -1.0, 0.0, 0.0], dtype=dtype, device=self.device)
-        self._types = torch.arange(c.n_types, device=self.device)[:, None, None]
+        self._slot_offsets = (torch.arange(c.n_neighbors, device=self.device) * c.n_types)[:, None, None]
         self._carry_ids = torch.arange(c.n_colors + 1, device=self.device)[:, None, None]
         self._colour_ids = torch.arange(3, 3 + c.n_colors, device=self.device)[:, None]
         n_others = c.n_boxes + (c.n_agents if c.see_other_agents else 0)
         self._box_keys = _BoxKeys(n_others, cap=max(c.sensor_range, c.sensitivity) + 0.5)
-        self._slot_bits = (4 + c.n_neighbors - 1).bit_length()  # walls + nearest others, merged
+        # walls and the nearest others, merged: wall distances can be down to -1 (the spec's "- 1")
+        self._slot_keys = _BoxKeys(4 + c.n_neighbors, cap=max(c.sensor_range, c.sensitivity) + 0.5, offset=1.0)
         self._arena: _Arena | None = None
         self._columns = torch.arange(batch_size, device=self.device)
 
@@ -405,13 +402,14 @@ class ForagingEnv:
             taken = self._box_flags(picked)
             present = present & ~taken
             keys = self._box_keys.remove(keys, taken)
-        carrying = torch.where(picking, picked, a.carrying)
+        carrying = torch.maximum(picked, a.carrying)  # an agent picks only when it carries nothing (-1)
         is_target = a.color.gather(0, carrying.clamp(min=0)) == a.target
         dropping = (carrying >= 0) & (ax < 1) & active
         drop_correct = dropping & is_target
-        reward = (torch.where(is_target, 1, -1) * picking + 2 * drop_correct).sum(dim=0)
-        dropped = torch.where(dropping, carrying, -1)
-        carrying = torch.where(dropping, -1, carrying)
+        reward = ((2 * is_target - 1) * picking + 2 * drop_correct).sum(dim=0)
+        # (x + 1) * flag - 1 is x where flag is set and -1 elsewhere
+        dropped = (carrying + 1) * dropping - 1
+        carrying = (carrying + 1) * ~dropping - 1
         # 4. sensing; a box dropped this step stays absent until the next one
         observations = self._observe(ax, ay, heading, carrying, keys, present, a)
         bx, by = a.bx, a.by
@@ -506,35 +504,38 @@ class ForagingEnv:
         o_seen = ~self._box_keys.is_absent(best) & (o_dist <= rng)
         # merged with the walls (strictly in range): stable, so walls win equal distances
         wall = torch.stack((ax, c.size - ax - 1, ay, c.size - ay - 1))                      # (4, A, B)
-        unseen = torch.tensor(_UNSEEN, dtype=self.dtype, device=self.device)
-        cand_dist = torch.cat((torch.where(wall < rng, wall, unseen), torch.where(o_seen, o_dist, unseen)))
-        # + 2 keeps the (possibly negative, >= -1) wall distances positive for the bit keys
-        cand_keys = _float_order_keys(cand_dist.double() + 2.0, self._slot_bits)
-        slots = []
-        for _ in range(n):
-            slots.append(cand_keys.amin(dim=0))
-            cand_keys = cand_keys.masked_fill(cand_keys == slots[-1], _TAKEN)
-        pick = torch.stack(slots).view(torch.int64) & ((1 << self._slot_bits) - 1)         # (n, A, B) in 0..3+n
+        cand_dist = torch.cat((wall, o_dist))                                              # (4 + n, A, B)
+        cand_keys = self._slot_keys.keys(cand_dist, torch.cat((wall >= rng, ~o_seen)))
+        slots = [cand_keys.amin(dim=0)]
+        for _ in range(n - 1):
+            slots.append(self._slot_keys.next_min(cand_keys, slots[-1]))
+        slots = torch.stack(slots)
+        seen = ~self._slot_keys.is_absent(slots)
+        pick = self._slot_keys.index(slots).clamp(max=3 + n)                               # (n, A, B) in 0..3+n
         s_dist = cand_dist.gather(0, pick)
-        seen = s_dist < _UNSEEN
         is_wall = pick < 4
         other = (pick - 4).clamp(min=0)
         g_dx, g_dy = o_dx.gather(0, other), o_dy.gather(0, other)
         # sin and cos of atan2(dy, dx) are dy/d and dx/d; an entity on the agent reads angle 0
+        # sums of masked terms, not torch.where (several times slower on CPU); exact, since every
+        # term but one is multiplied by zero and all are finite
         on_top = s_dist == 0
-        safe = torch.where(on_top, 1.0, s_dist)
-        zero = torch.zeros((), dtype=self.dtype, device=self.device)
+        safe = s_dist + on_top  # 1 where the entity sits on the agent
+        other_seen = seen & ~is_wall
+        wall_seen = (seen & is_wall).to(self.dtype)
         wall_pick = pick.clamp(max=3)
-        s_sin = torch.where(is_wall, self._wall_sin[wall_pick], torch.where(on_top, zero, g_dy / safe))
-        s_cos = torch.where(is_wall, self._wall_cos[wall_pick], torch.where(on_top, 1.0, g_dx / safe))
-        s_kind = torch.where(seen, torch.where(is_wall, WALL, kind.take(flat).gather(0, other)), 0)
+        s_sin = self._wall_sin[wall_pick] * wall_seen + (g_dy / safe) * (other_seen & ~on_top)
+        s_cos = self._wall_cos[wall_pick] * wall_seen + (g_dx / safe) * (other_seen & ~on_top) + (other_seen & on_top)
+        s_kind = WALL * (seen & is_wall) + kind.take(flat).gather(0, other) * other_seen
         heading_rad = torch.deg2rad(heading)
-        carried = torch.where(carrying >= 0, a.color.gather(0, carrying.clamp(min=0)) - 2, 0)  # (A, B)
+        carried = (a.color.gather(0, carrying.clamp(min=0)) - 2) * (carrying >= 0)         # (A, B)
+        type_onehot = torch.zeros(n * c.n_types, A, B, dtype=self.dtype, device=self.device)
+        type_onehot.scatter_(0, s_kind + self._slot_offsets, 1.0)
         parts = torch.cat((
-            (s_kind[:, None] == self._types).to(self.dtype).reshape(n * c.n_types, A, B),
-            torch.where(seen, s_dist, zero) / rng,
-            torch.where(seen, s_sin, zero),
-            torch.where(seen, s_cos, zero),
+            type_onehot,
+            s_dist * (seen / rng),
+            s_sin,
+            s_cos,
             torch.sin(heading_rad)[None], torch.cos(heading_rad)[None],
             (carried[None] == self._carry_ids).to(self.dtype),
             (a.target == self._colour_ids)[:, None].to(self.dtype).expand(-1, A, -1),
@@ -548,8 +549,6 @@ def _distance(dx: torch.Tensor, dy: torch.Tensor) -> torch.Tensor:
     return torch.sqrt(dx * dx + dy * dy)
 
 
-_UNSEEN = 1e30   # distance of an empty candidate: finite, so that its bit key stays a number
-_TAKEN = 1e300   # key of a candidate already chosen
 _BATCH_LAST = {"ax", "ay", "heading", "carrying", "bx", "by", "color", "present"}
 
 

@@ -155,12 +155,6 @@ def build_parser() -> argparse.ArgumentParser:
             _run_parser(sub)
             sub.set_defaults(handler=_run)
         else:
-            try:
-                command = importlib.import_module(module)
-            except ModuleNotFoundError as error:
-                if error.name != module:
-                    raise
-                continue  # TODO(lead): remove once every verb module exists
             command = importlib.import_module(module)
             command.add_arguments(sub)
             sub.set_defaults(handler=command.main)

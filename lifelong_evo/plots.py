@@ -210,14 +210,18 @@ def current_by_task(group: list[Run], column: str = "best") -> dict[str, tuple[n
 
 
 def retention_by_task(group: list[Run], level: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Per earlier task: the measured retention points (generations where any seed measured it)."""
+    """Per earlier task: the measured retention points (generations where any seed measured it),
+    with NaN at the generations where that task is the current one (a break in the line)."""
     out = {}
     columns = [c for c in group[0].metrics[0] if c.startswith(f"retention_{level}_")] if group[0].metrics else []
     for column in columns:
+        task = column[len(f"retention_{level}_"):]
         generations, values = stack(group, column)
-        measured = ~np.all(np.isnan(values), axis=0)
+        current = np.array(group[0].tasks[:len(generations)]) == task
+        measured = ~np.all(np.isnan(values), axis=0) & ~current
         if measured.any():
-            out[column[len(f"retention_{level}_"):]] = (generations[measured], values[:, measured])
+            keep = measured | current
+            out[task] = (generations[keep], np.where(current[None, keep], np.nan, values[:, keep]))
     return out
 
 

@@ -148,6 +148,8 @@ class RerunRecorder(Recorder):
         self._pending_rows = 0
         self._last_flush = time.monotonic()
         self.episodes_logged: list[str] = []
+        self.episode_views: list[tuple[str, str]] | None = None
+        """The arena tabs of the blueprint sent at the start (None: no update at close)."""
 
     @classmethod
     def for_run(cls, run_dir, config, resume: bool) -> "RerunRecorder":
@@ -158,9 +160,11 @@ class RerunRecorder(Recorder):
             if checkpoint is not None:
                 generation = int(re.sub(r"\D", "", checkpoint.stem) or 0)
                 path = run_dir.path / f"recording-resumed-{generation:06d}.rrd"
-        return cls(path, recording_id=f"{APPLICATION_ID}/{name}", recording_name=name,
-                   arena_size=config.env_config().size,
-                   blueprint=make_blueprint(expected_episode_paths(config)), mode=sink_mode())
+        expected = expected_episode_paths(config)
+        recorder = cls(path, recording_id=f"{APPLICATION_ID}/{name}", recording_name=name,
+                       arena_size=config.env_config().size, blueprint=make_blueprint(expected), mode=sink_mode())
+        recorder.episode_views = expected
+        return recorder
 
     # -- stream ---------------------------------------------------------------------------------
 
@@ -333,6 +337,12 @@ class RerunRecorder(Recorder):
     def close(self) -> None:
         if self._pending:
             self.flush_curves()
+        if self._stream is not None and self.episode_views is not None:
+            known = {path for path, _ in self.episode_views}
+            extra = [(path, path.split("/", 1)[1]) for path in self.episodes_logged if path not in known]
+            if extra:  # episodes the schedule did not predict (e.g. every few generations): show them too
+                views = sorted(self.episode_views + extra)
+                self._stream.send_blueprint(make_blueprint(views), make_active=False, make_default=True)
         if self._stream is not None:
             self._stream.flush()
             self._stream.disconnect()

@@ -1,0 +1,136 @@
+"""``plot`` and ``compare`` on real smoke runs: 2 seeds of NEAT and 1 of OpenAI-ES."""
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lifelong_evo.cli import main as cli_main
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory) -> Path:
+    """A sweep-like folder: runs two levels down, named without their seed."""
+    root = tmp_path_factory.mktemp("sweep")
+    for algo, seed, reg, name in (("neat", 1, "1", "a"), ("neat", 2, "1", "b"), ("openai-es", 1, "0", "c")):
+        assert cli_main(["--algo", algo, "--reg", reg, "--seed", str(seed), "--preset", "smoke", "--no-record",
+                         "--quiet", "--out", str(root / algo), "--name", name]) == 0
+    return root
+
+
+def summaries(sweep: Path, algo: str) -> list[dict]:
+    return [json.loads((run / "summary.json").read_text()) for run in sorted((sweep / algo).iterdir())]
+
+
+def test_plot_writes_every_figure_kind(sweep, tmp_path, capsys):
+    out = tmp_path / "figures"
+    assert cli_main(["plot", str(sweep), "--out", str(out)]) == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted([
+        "neat-red-green-red-reg1-retention-pop.png", "neat-red-green-red-reg1-retention-top.png",
+        "neat-red-green-red-reg1-species.png", "neat-red-green-red-reg1-lifespans-seed1.png",
+        "neat-red-green-red-reg1-lifespans-seed2.png",
+        "openai-es-red-green-red-reg0-retention-pop.png", "openai-es-red-green-red-reg0-retention-top.png"])
+    for path in out.iterdir():
+        data = path.read_bytes()
+        assert data.startswith(PNG) and len(data) > 10_000, path.name
+    assert capsys.readouterr().out.count(".png") == len(names)
+
+
+def test_plot_single_run_defaults_to_its_directory(sweep):
+    run = sweep / "openai-es" / "c"
+    assert cli_main(["plot", str(run)]) == 0
+    assert (run / "openai-es-red-green-red-reg0-retention-pop.png").is_file()
+
+
+def test_plot_series_follow_metrics(sweep):
+    """The curves drawn are metrics.csv's: the current task's best (NaN elsewhere), the retention
+    where measured, stacked over the two seeds."""
+    from lifelong_evo.plots import current_by_task, group_runs, load_run, retention_by_task
+    from lifelong_evo.rundir import read_metrics
+
+    runs = [load_run(p) for p in sorted((sweep / "neat").iterdir())]
+    groups = group_runs(runs)
+    assert len(groups) == 1 and [r.seed for r in groups[0]] == [1, 2]
+    metrics = [read_metrics(p / "metrics.csv") for p in sorted((sweep / "neat").iterdir())]
+    generations, values = current_by_task(groups[0])["green"]
+    assert values.shape == (2, 9)
+    for seed, rows in enumerate(metrics):
+        expected = [float(r["best"]) if r["task"] == "green" else np.nan for r in rows]
+        np.testing.assert_array_equal(values[seed], expected)
+    generations, values = retention_by_task(groups[0], "top")["red"]
+    measured = [int(r["generation"]) for r in metrics[0] if r["retention_top_red"]]
+    drawn = ~np.isnan(values).all(axis=0)
+    assert list(generations[drawn]) == measured and measured
+    np.testing.assert_array_equal(values[1][drawn], [float(r["retention_top_red"]) for r in metrics[1]
+                                                     if r["retention_top_red"]])
+    # NaN (a break in the dashed line) exactly where red is the current task
+    assert [int(r["generation"]) for r in metrics[0] if r["task"] == "red"] == list(generations[~drawn])
+
+
+def test_compare_groups_configurations_and_matches_hand_computation(sweep, tmp_path, capsys):
+    from lifelong_evo.compare import compare_table
+
+    rows, markdown = compare_table([sweep])
+    configurations = {r["configuration"]: r["n"] for r in rows if r["metric"] == "C phase 0 (red)"}
+    assert configurations == {"neat reg=1 red-green-red": 2, "openai-es reg=0 red-green-red": 1}
+    by = {(r["algo"], r["metric"]): r for r in rows}
+    neat = summaries(sweep, "neat")
+    # current performance of phase 1, both seeds: the mean; with two values the 95% bootstrap
+    # interval is [min, max] (each all-one-value resample has probability 1/4 > 2.5%)
+    values = [s["current"][1] for s in neat]
+    row = by[("neat", "C phase 1 (green)")]
+    assert row["values"] == values
+    assert row["mean"] == pytest.approx(np.mean(values))
+    assert (row["ci_low"], row["ci_high"]) == pytest.approx((min(values), max(values)))
+    # forgetting of red at the end of phase 1, population and top individual
+    for key in ("R_pop", "F_pop", "R_top", "F_top"):
+        values = [next(f[key] for f in s["forgetting"] if f["task"] == "red" and f["at_end_of"] == 1) for s in neat]
+        assert by[("neat", f"{key} red at end of phase 1")]["mean"] == pytest.approx(np.mean(values))
+    for key in ("ACC_pop", "BWT_pop", "FWT_pop", "ACC_top", "BWT_top", "FWT_top"):
+        assert by[("neat", key)]["mean"] == pytest.approx(np.mean([s[key] for s in neat]))
+    # a single seed: the value itself, no interval
+    es = summaries(sweep, "openai-es")[0]
+    row = by[("openai-es", "F_top green at end of phase 2")]
+    expected = next(f["F_top"] for f in es["forgetting"] if f["task"] == "green")
+    assert (row["n"], row["mean"], row["ci_low"], row["ci_high"]) == (1, expected, expected, expected)
+    assert "| neat reg=1 red-green-red | 2 |" in markdown and "| openai-es reg=0 red-green-red | 1 |" in markdown
+    assert f"| phase 0 (red) | {es['current'][0]:.2f} |" in markdown
+
+    out = tmp_path / "cmp"
+    assert cli_main(["compare", str(sweep / "neat"), str(sweep / "openai-es" / "c"), "--out", str(out)]) == 0
+    assert (out / "comparison.md").read_text().strip() == markdown.strip()
+    with open(out / "comparison.csv", newline="") as handle:
+        written = list(csv.DictReader(handle))
+    assert len(written) == len(rows)
+    assert float(written[0]["mean"]) == pytest.approx(rows[0]["mean"])
+    assert (out / "comparison-current.png").read_bytes().startswith(PNG)
+    assert "neat reg=1 red-green-red" in capsys.readouterr().out
+
+
+def test_bootstrap_interval():
+    from lifelong_evo.compare import bootstrap_ci
+
+    assert bootstrap_ci([2.0]) == (2.0, 2.0, 2.0)
+    mean, low, high = bootstrap_ci([0.0, 1.0, 2.0, 3.0, 10.0])
+    assert mean == pytest.approx(3.2) and 0.0 < low < mean < high < 10.0
+    assert bootstrap_ci([0.0, 1.0, 2.0, 3.0, 10.0]) == (mean, low, high)  # fixed seed
+    assert bootstrap_ci([1.0, None, 3.0])[0] == 2.0
+    # the definition: 2000 resamples with numpy's generator seeded 0, 2.5 and 97.5 percentiles
+    data = np.array([0.0, 1.0, 2.0, 3.0, 10.0])
+    means = data[np.random.default_rng(0).integers(0, 5, size=(2000, 5))].mean(axis=1)
+    assert (low, high) == tuple(np.percentile(means, [2.5, 97.5]))
+
+
+def test_compare_and_plot_errors_are_one_line(tmp_path, capsys):
+    for verb in ("compare", "plot"):
+        assert cli_main([verb, str(tmp_path)]) == 2
+        err = capsys.readouterr().err
+        assert "no run directory" in err and err.count("\n") == 1
+        assert cli_main([verb, str(tmp_path / "missing")]) == 2
+        assert "does not exist" in capsys.readouterr().err
