@@ -49,7 +49,7 @@ def bench_env(n_envs: int, steps: int, config: ForagingConfig, device: str, comp
             "dynamics": max(dynamics - sensing, 0.0) / total}
 
 
-def bench_algo(algo: str, population: int, n_envs: int, generations: int, device: str) -> dict:
+def bench_algo(algo: str, population: int, n_envs: int, generations: int, device: str, compiled: bool) -> dict:
     """Time full generations of ``algo`` at the paper's size (after one warm-up generation)."""
     from algorithms import make_optimizer
     from lifelong_evo.evaluate import evaluate
@@ -60,7 +60,8 @@ def bench_algo(algo: str, population: int, n_envs: int, generations: int, device
     totals = {"ask": 0.0, "evaluate": 0.0, "tell": 0.0}
     for generation in range(generations + 1):
         policy, t_ask = _timed(optimizer.ask)
-        fitness, t_eval = _timed(lambda: evaluate(policy, config, [TASKS["red"]], n_envs, generator, device)[0])
+        fitness, t_eval = _timed(lambda: evaluate(policy, config, [TASKS["red"]], n_envs, generator, device,
+                                                  compiled=compiled)[0])
         _, t_tell = _timed(lambda: optimizer.tell(fitness, optimizer.regularise(fitness)))
         if generation:  # the first generation warms up
             totals["ask"] += t_ask
@@ -83,13 +84,13 @@ def main(argv=None) -> None:
     parser.add_argument("--evals", type=int, default=10, help="environments per controller (--algo)")
     parser.add_argument("--generations", type=int, default=2, help="generations timed after a warm-up (--algo)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
-    parser.add_argument("--compile", action="store_true", help="torch.compile the sensing (env only)")
+    parser.add_argument("--compile", action="store_true", help="torch.compile the environment's sensing")
     parser.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     print(f"threads={torch.get_num_threads()} device={args.device} compile={'on' if args.compile else 'off'}")
     if args.algo:
-        result = bench_algo(args.algo, args.population, args.evals, args.generations, args.device)
+        result = bench_algo(args.algo, args.population, args.evals, args.generations, args.device, args.compile)
         print(f"algo={args.algo} controllers={result['controllers']} x {args.evals} envs x 500 steps: "
               f"ask {result['ask']:.3f} s, evaluate {result['evaluate']:.3f} s, "
               f"regularise+tell {result['tell']:.3f} s")

@@ -1,12 +1,22 @@
 """Scoring a whole population on several tasks in one batched environment call."""
 from __future__ import annotations
 
+import functools
 from typing import Sequence
 
 import torch
 
 from algorithms.base import BatchedPolicy
 from envs import ForagingConfig, ForagingEnv, ForagingState, Task, outputs_to_wheels
+
+
+@functools.lru_cache(maxsize=8)
+def _env(config: ForagingConfig, batch_size: int, device: str, dtype: torch.dtype, compiled: bool) -> ForagingEnv:
+    """One environment object per batch shape, so that a compiled sensing is compiled once per shape."""
+    env = ForagingEnv(config, batch_size=batch_size, device=device, dtype=dtype)
+    if compiled:
+        env.compile()
+    return env
 
 
 def sample_episodes(config: ForagingConfig, tasks: Sequence[Task], n_envs: int, generator: torch.Generator,
@@ -17,7 +27,8 @@ def sample_episodes(config: ForagingConfig, tasks: Sequence[Task], n_envs: int, 
 
 
 def run_episodes(policy: BatchedPolicy, config: ForagingConfig, episodes: ForagingState,
-                 device: str | torch.device = "cpu", dtype: torch.dtype = torch.float32) -> torch.Tensor:
+                 device: str | torch.device = "cpu", dtype: torch.dtype = torch.float32,
+                 compiled: bool = False) -> torch.Tensor:
     """Every controller of ``policy`` plays every episode of ``episodes`` (E initial states);
     returns the summed rewards ``(population, E)``.
 
@@ -26,7 +37,7 @@ def run_episodes(policy: BatchedPolicy, config: ForagingConfig, episodes: Foragi
     """
     population = policy.population_size
     n_episodes = episodes.target.shape[0]
-    env = ForagingEnv(config, batch_size=population * n_episodes, device=device, dtype=dtype)
+    env = _env(config, population * n_episodes, str(device), dtype, compiled)
     tiled = episodes.index(torch.arange(n_episodes).repeat(population))
     observations = env.reset(state=tiled)
     totals = torch.zeros(population * n_episodes, dtype=dtype, device=device)
@@ -42,9 +53,9 @@ def run_episodes(policy: BatchedPolicy, config: ForagingConfig, episodes: Foragi
 
 def evaluate(policy: BatchedPolicy, config: ForagingConfig, tasks: Sequence[Task], n_envs: int,
              generator: torch.Generator, device: str | torch.device = "cpu",
-             dtype: torch.dtype = torch.float32) -> torch.Tensor:
+             dtype: torch.dtype = torch.float32, compiled: bool = False) -> torch.Tensor:
     """Fitness ``(len(tasks), population)``: the mean episode reward of every controller over
     ``n_envs`` fresh environments per task, drawn from ``generator`` and shared by all controllers."""
     episodes = sample_episodes(config, tasks, n_envs, generator, device, dtype)
-    totals = run_episodes(policy, config, episodes, device, dtype)
+    totals = run_episodes(policy, config, episodes, device, dtype, compiled)
     return totals.view(policy.population_size, len(tasks), n_envs).mean(dim=-1).T
