@@ -95,7 +95,8 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
                           for i, task in enumerate(others)}
                 scores[phase.name] = retention(raw, raw, optimizer.centre_index)
                 top = int(raw.argmax())
-                exported = optimizer.export(top) if last else None
+                periodic = bool(config.episodes_every) and generation % config.episodes_every == 0
+                exported = optimizer.export(top) if last or periodic else None
                 report = optimizer.tell(raw, regularised)
                 row = {"task": phase.name, "task_index": phase_index, "generation": generation,
                        "generation_in_task": in_task, **fitness_stats(raw), **fitness_stats(regularised, "reg_")}
@@ -116,10 +117,11 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
                 recorder.log_generation(row, report)
                 if generation == 0:
                     state.initial = {level: {name: s[level] for name, s in scores.items()} for level in ("pop", "top")}
+                seen = [t for t in tasks if t.name in phase_names[:phase_index + 1]]
+                if (last or periodic) and recorder.wants_episodes:
+                    _record_episodes(config, recorder, exported, seen, generation, phase_index, phase.name, env_config)
                 if last:
-                    _finish_phase(config, run_dir, optimizer, state, phase_index, phase.name, scores, exported,
-                                  [t for t in tasks if t.name in phase_names[:phase_index + 1]], recorder,
-                                  generation, env_config)
+                    _finish_phase(run_dir, optimizer, state, phase_index, phase.name, scores, exported)
                 generation += 1
                 state.generation = generation
                 state.wall_time_s = time.monotonic() - started
@@ -140,10 +142,9 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
     return summary
 
 
-def _finish_phase(config, run_dir, optimizer, state, phase_index, name, scores, exported, seen_tasks,
-                  recorder, generation, env_config) -> None:
-    """Task end: record C and the retention on every task, export the top controller, record its
-    episodes on the tasks seen so far, and let the optimiser take its regularisation reference."""
+def _finish_phase(run_dir, optimizer, state, phase_index, name, scores, exported) -> None:
+    """Task end: record C and the retention on every task, export the top controller, and let
+    the optimiser take its regularisation reference."""
     end = {"task": name, "C": scores[name]["pop"],
            "R_pop": {n: s["pop"] for n, s in scores.items()}, "R_top": {n: s["top"] for n, s in scores.items()}}
     if optimizer.centre_index is not None:
@@ -151,13 +152,16 @@ def _finish_phase(config, run_dir, optimizer, state, phase_index, name, scores, 
     state.phase_ends.append(end)
     write_json(run_dir.controllers / f"task{phase_index}-{name}-top.json", exported)
     write_json(run_dir.controllers / "final-top.json", exported)
-    if recorder.wants_episodes:
-        policy = policy_from_export(exported, config.device)
-        for task in seen_tasks:
-            seed = config.seed * 1_000_003 + generation  # its own stream: recording never shifts the run's
-            episode = play_episodes(policy, env_config, task, [seed], config.device)[0]
-            recorder.log_episode(generation, phase_index, name, task, episode)
     optimizer.end_task()
+
+
+def _record_episodes(config, recorder, exported, tasks, generation, phase_index, name, env_config) -> None:
+    """One episode of the current top individual on each task seen so far, for the recording."""
+    policy = policy_from_export(exported, config.device)
+    seed = config.seed * 1_000_003 + generation  # its own stream: recording never shifts the run's
+    for task in tasks:
+        episode = play_episodes(policy, env_config, task, [seed], config.device)[0]
+        recorder.log_episode(generation, phase_index, name, task, episode)
 
 
 def _checkpoint_payload(config, optimizer, generator, state) -> dict[str, Any]:

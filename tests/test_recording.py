@@ -318,3 +318,14 @@ def test_unknown_sink_mode_is_one_line_error(tmp_path, monkeypatch, capsys):
     assert cli_main(["--preset", "smoke", "--out", str(tmp_path), "--name", "x", "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "LIFELONG_EVO_RERUN='bogus' is not one of file, connect, both" in err and err.count("\n") == 1
+
+
+def test_episodes_every_records_the_top_individual_between_task_ends(tmp_path):
+    assert cli_main(["--algo", "openai-es", "--preset", "smoke", "--episodes-every", "4", "--out", str(tmp_path),
+                 "--name", "p", "--quiet"]) == 0
+    rows = read_rrd(tmp_path / "p/recording.rrd")
+    periodic = sorted({path.split("/")[1] for path in rows if path.startswith("episodes/")})
+    # generations 0, 4 and 8 by the interval, 2, 5 and 8 as task ends (red, green, red)
+    assert periodic == ["gen0000_red", "gen0002_red", "gen0004_green", "gen0005_green", "gen0008_red"]
+    assert len(rows["episodes/gen0004_green/on_red/agents"]) > 1
+    assert len(rows["episodes/gen0004_green/on_green/agents"]) > 1
