@@ -11,7 +11,6 @@ from typing import Any
 import torch
 
 from algorithms import make_optimizer, policy_from_export
-from envs import Task
 
 from . import checkpoint
 from .config import RunConfig

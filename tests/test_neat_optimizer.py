@@ -169,7 +169,6 @@ def test_ask_tell_report_and_errors():
 
 
 def test_raw_and_selection_fitness_are_kept_apart():
-    obs = _obs(POP)
     opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=6)
     opt.ask()
     genomes = list(opt.asked_genomes)
