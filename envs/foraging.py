@@ -341,8 +341,10 @@ class ForagingEnv:
         return self._observe_arena()
 
     def compile(self) -> None:
-        """Compile the sensing, the bulk of a step, with ``torch.compile`` (static shapes)."""
+        """Compile the distances and the sensing, the bulk of a step, with ``torch.compile``
+        (static shapes: each batch size compiles once)."""
         self._observe = torch.compile(self._observe, dynamic=False)
+        self._box_order_keys = torch.compile(self._box_order_keys, dynamic=False)
 
     @property
     def state(self) -> ForagingState:
@@ -392,8 +394,7 @@ class ForagingEnv:
         turn = torch.rad2deg(velocity[2] * (moving / WHEEL_RADIUS_FACTOR))
         heading = torch.remainder(a.heading + turn, 360.0)
         # 2. distances from the new positions
-        dist = _distance(ax[None] - a.bx[:, None], ay[None] - a.by[:, None])              # (K, A, B)
-        keys = self._box_keys.keys(dist, ~a.present[:, None])
+        keys = self._box_order_keys(ax, ay, a.bx, a.by, a.present)                          # (K, A, B)
         # 3. picks (agents in index order), then drops
         picked = self._resolve_picks(keys, ax, ay, a, active)
         picking = picked >= 0
@@ -476,9 +477,12 @@ class ForagingEnv:
     # ------------------------------------------------------------------ sensing
     def _observe_arena(self) -> torch.Tensor:
         a = self._arena
-        keys = self._box_keys.keys(_distance(a.ax[None] - a.bx[:, None], a.ay[None] - a.by[:, None]),
-                                   ~a.present[:, None])
+        keys = self._box_order_keys(a.ax, a.ay, a.bx, a.by, a.present)
         return self._observe(a.ax, a.ay, a.heading, a.carrying, keys, a.present, a)
+
+    def _box_order_keys(self, ax, ay, bx, by, present) -> torch.Tensor:
+        """Every agent's order keys of every box, ``(K, A, B)``, absent boxes marked."""
+        return self._box_keys.keys(_distance(ax[None] - bx[:, None], ay[None] - by[:, None]), ~present[:, None])
 
     def _observe(self, ax, ay, heading, carrying, keys, present, a: _Arena) -> torch.Tensor:
         """Observation vectors ``(B, A, obs_dim)`` in the spec's order; ``keys``: the boxes'
