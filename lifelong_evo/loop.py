@@ -124,7 +124,7 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
                 generation += 1
                 state.generation = generation
                 state.wall_time_s = time.monotonic() - started
-                best_kept = {name: s["pop"] for name, s in scores.items() if name != phase.name}
+                best_kept = {t.name: scores[t.name]["pop"] for t in earlier if t.name in scores}
                 display.update(generation - 1, phase.name, phase_index + 1, len(phases), raw.max().item(), best_kept)
                 if last or generation % config.checkpoint_every == 0:
                     _save_checkpoint(config, run_dir, optimizer, generator, state)
