@@ -1,0 +1,30 @@
+"""Every registered optimiser gets better at the real foraging task within a few generations."""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from algorithms import REGISTRY, make_optimizer
+from envs import TASKS, ForagingConfig
+from lifelong_evo.evaluate import evaluate
+
+CONFIG = ForagingConfig(duration=150)
+GENERATIONS = 8
+
+
+def _fitness(policy) -> torch.Tensor:
+    # the same 4 environments every generation: a fixed objective, so improvement is not luck
+    return evaluate(policy, CONFIG, [TASKS["red"]], 4, torch.Generator().manual_seed(0))[0]
+
+
+@pytest.mark.parametrize("name", sorted(REGISTRY))
+def test_fitness_improves_on_the_real_environment(name):
+    torch.manual_seed(0)
+    optimizer = make_optimizer(name, obs_dim=CONFIG.obs_dim, population_size=30, seed=1)
+    best = []
+    for _ in range(GENERATIONS):
+        fitness = _fitness(optimizer.ask())
+        best.append(fitness.max().item())
+        optimizer.tell(fitness, optimizer.regularise(fitness))
+    assert max(best[1:]) > best[0], f"{name}: best fitness per generation {best}"
+    assert best[-1] > best[0] or max(best[GENERATIONS // 2:]) > best[0]
