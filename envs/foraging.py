@@ -412,7 +412,7 @@ class ForagingEnv:
         dropped = (carrying + 1) * dropping - 1
         carrying = (carrying + 1) * ~dropping - 1
         # 4. sensing; a box dropped this step stays absent until the next one
-        observations = self._observe(ax, ay, heading, carrying, keys, present, a)
+        observations = self._observe(ax, ay, heading, carrying, keys, a)
         bx, by = a.bx, a.by
         respawn = torch.full((c.n_agents, a.ax.shape[1], 2), -1, dtype=torch.long, device=self.device)
         if c.repositioning and dropping.any():
@@ -478,13 +478,13 @@ class ForagingEnv:
     def _observe_arena(self) -> torch.Tensor:
         a = self._arena
         keys = self._box_order_keys(a.ax, a.ay, a.bx, a.by, a.present)
-        return self._observe(a.ax, a.ay, a.heading, a.carrying, keys, a.present, a)
+        return self._observe(a.ax, a.ay, a.heading, a.carrying, keys, a)
 
     def _box_order_keys(self, ax, ay, bx, by, present) -> torch.Tensor:
         """Every agent's order keys of every box, ``(K, A, B)``, absent boxes marked."""
         return self._box_keys.keys(_distance(ax[None] - bx[:, None], ay[None] - by[:, None]), ~present[:, None])
 
-    def _observe(self, ax, ay, heading, carrying, keys, present, a: _Arena) -> torch.Tensor:
+    def _observe(self, ax, ay, heading, carrying, keys, a: _Arena) -> torch.Tensor:
         """Observation vectors ``(B, A, obs_dim)`` in the spec's order; ``keys``: the boxes'
         ``(K, A, B)`` order keys with the absent ones marked."""
         c = self.config
