@@ -149,7 +149,7 @@ class _BoxKeys:
     A key is the distance in fixed point, clamped at ``cap`` (just beyond the sensor range:
     farther boxes are never sensed or picked), shifted left by ``index_bits`` and or-ed with the
     index: equal distances order by index, as the spec's stable sort does. Distances closer
-    than ``resolution`` (2**-22, about 2.4e-7 units, for the paper's arena) also count as tied.
+    than ``1 / scale`` (2**-22, about 2.4e-7 units, for the paper's arena) also count as tied.
     """
 
     def __init__(self, n_candidates: int, cap: float, offset: float = 0.0):
@@ -160,7 +160,6 @@ class _BoxKeys:
         self.absent = 1 << 30                       # the absent bit: above every present key
         room = (self.absent >> self.index_bits) - 1  # the largest fixed-point distance that fits
         self.scale = float(2 ** math.floor(math.log2(room / cap)))
-        self.resolution = 1.0 / self.scale
 
     def keys(self, dist: torch.Tensor, absent: torch.Tensor) -> torch.Tensor:
         """``dist``: (N, A, B); ``absent``: bool, broadcastable to it (usually (N, 1, B)).

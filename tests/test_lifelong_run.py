@@ -186,3 +186,17 @@ def test_resume_after_sigkill_gives_identical_metrics(tmp_path, algo):
     subprocess.run(_cli("--resume", "--out", str(tmp_path), "--name", "killed", "--quiet", "--no-record"),
                    check=True, env=env, cwd=ROOT)
     assert metrics.read_text() == whole
+
+
+def test_reg_for_an_algorithm_without_regulariser(monkeypatch, tmp_path, capsys):
+    from algorithms import REGISTRY, NeatOptimizer
+
+    class NoRegulariser(NeatOptimizer):
+        name = "no-reg"
+        has_regularizer = False
+
+    monkeypatch.setitem(REGISTRY, "no-reg", NoRegulariser)
+    assert main(["--algo", "no-reg", "--reg", "1", "--preset", "smoke", "--out", str(tmp_path), "--no-record"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: algorithm 'no-reg' has no regulariser") and err.count("\n") == 1
+    assert not any(tmp_path.iterdir())
