@@ -69,7 +69,7 @@ class ForagingConfig:
     max_wheel_velocity: float = 2.0
     """Wheel speed limit, units per second."""
     sensitivity: float = 0.5
-    """Pick-up radius (strict)."""
+    """Pick-up radius (strict), in (0, 0.5]."""
     time_step: float = 0.1
     """Seconds per step."""
     duration: int = 500
@@ -96,6 +96,10 @@ class ForagingConfig:
         for name in ("sensor_range", "max_wheel_velocity", "sensitivity", "time_step"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.sensitivity > 0.5:
+            # within a strict 0.5 an agent reaches at most one integer cell, which is what lets
+            # the step resolve simultaneous picks without a loop over agents
+            raise ConfigError(f"sensitivity must be <= 0.5 (the pick-up radius reaches one box cell), got {self.sensitivity}")
         if self.size < 8:
             # boxes are placed at integer cells x in [6, size-1), y in [2, size-1)
             raise ConfigError(f"size must be >= 8 so that boxes have cells to spawn in, got {self.size}")

@@ -142,40 +142,43 @@ class _Arena:
             retrieved=self.retrieved.clone(), done=self.done.clone(), respawn_key=self.respawn_key.clone())
 
 
-class _BoxKeys:
-    """Integer order keys for (distance, index) pairs, so that ``amin`` finds the nearest box and
-    its index in one vectorised reduction (``argmin`` over the box axis is far slower).
+class _OrderKeys:
+    """Integer order keys for (distance, candidate index) pairs, so that ``amin`` finds the
+    nearest candidate and its index in one vectorised reduction (``argmin``, ``topk`` and sorts
+    are far slower).
 
-    A key is the distance in fixed point, clamped at ``cap`` (just beyond the sensor range:
-    farther boxes are never sensed or picked), shifted left by ``index_bits`` and or-ed with the
-    index: equal distances order by index, as the spec's stable sort does. Distances closer
-    than ``1 / scale`` (2**-22, about 2.4e-7 units, for the paper's arena) also count as tied.
+    Candidates are numbered in the spec's sensing order (walls top, bottom, left, right, then
+    other agents, then boxes). A key is the distance in fixed point, clamped to
+    ``[low, high]`` and shifted to be >= 0, then shifted left by ``index_bits`` and or-ed with
+    the candidate's number: equal distances order by number, as the spec's stable sort does.
+    Distances closer than ``1 / scale`` (2**-22, about 2.4e-7 units, for the paper's arena)
+    count as tied. Bit 30 marks a candidate absent (never sensed), above every present key.
     """
 
-    def __init__(self, n_candidates: int, cap: float, offset: float = 0.0):
+    def __init__(self, n_candidates: int, low: float, high: float):
         self.index_bits = max(1, (n_candidates - 1).bit_length())
         self.index_mask = (1 << self.index_bits) - 1
-        self.offset = offset  # added to every distance first, so that the walls' (>= -1) are >= 0
-        self.cap = cap + offset
-        self.absent = 1 << 30                       # the absent bit: above every present key
+        self.low, self.high = low, high
+        self.absent = 1 << 30
         room = (self.absent >> self.index_bits) - 1  # the largest fixed-point distance that fits
-        self.scale = float(2 ** math.floor(math.log2(room / cap)))
+        self.scale = float(2 ** math.floor(math.log2(room / (high - low))))
+        # the scale is a power of two: scaling is exact, so the shift by -low is exact too
+        self.origin = int(math.ceil(-low * self.scale))
 
-    def keys(self, dist: torch.Tensor, absent: torch.Tensor) -> torch.Tensor:
-        """``dist``: (N, A, B); ``absent``: bool, broadcastable to it (usually (N, 1, B)).
-        Returns (N, A, B) int32 keys."""
-        position = torch.arange(dist.shape[0], dtype=torch.int32, device=dist.device)
-        tag = position.view(-1, *([1] * (absent.dim() - 1))) | (absent.to(torch.int32) << 30)
-        if self.offset:
-            dist = dist + self.offset
-        fixed = (dist.clamp(min=0.0, max=self.cap) * self.scale).to(torch.int32)
+    def keys(self, dist: torch.Tensor, absent: torch.Tensor, first: int) -> torch.Tensor:
+        """``dist``: (N, A, B) distances of candidates ``first .. first + N - 1``; ``absent``: bool,
+        broadcastable to it. Returns (N, A, B) int32 keys."""
+        number = torch.arange(first, first + dist.shape[0], dtype=torch.int32, device=dist.device)
+        tag = number.view(-1, *([1] * (absent.dim() - 1))) | (absent.to(torch.int32) << 30)
+        fixed = (dist.clamp(min=self.low, max=self.high) * self.scale).to(torch.int32) + self.origin
         return (fixed << self.index_bits) | tag
 
-    def remove(self, keys: torch.Tensor, gone: torch.Tensor) -> torch.Tensor:
+    @staticmethod
+    def remove(keys: torch.Tensor, gone: torch.Tensor) -> torch.Tensor:
         """Mark the candidates in ``gone`` ((N, B) bool) absent."""
         return keys | (gone.to(torch.int32) << 30)[:, None]
 
-    def index(self, key: torch.Tensor) -> torch.Tensor:
+    def number(self, key: torch.Tensor) -> torch.Tensor:
         return (key & self.index_mask).long()
 
     def is_absent(self, key: torch.Tensor) -> torch.Tensor:
@@ -189,6 +192,20 @@ class _BoxKeys:
         found = (shifted.amin(dim=0) ^ torch.iinfo(torch.int32).min) + previous + 1
         # none left above ``previous``: the wrap-around gives ``previous`` back; mark it absent
         return found | ((found <= previous).to(torch.int32) << 30)
+
+    def smallest(self, groups: Sequence[torch.Tensor], n: int) -> torch.Tensor:
+        """The ``n`` smallest keys over the candidate groups (each (N_g, A, B)): ``(n, A, B)``."""
+        def minimum(values):
+            values = list(values)
+            result = values[0]
+            for value in values[1:]:
+                result = torch.minimum(result, value)
+            return result
+
+        best = [minimum(group.amin(dim=0) for group in groups)]
+        for _ in range(n - 1):
+            best.append(minimum(self.next_min(group, best[-1]) for group in groups))
+        return torch.stack(best)
 
 
 class ForagingEnv:
@@ -214,15 +231,19 @@ class ForagingEnv:
         # sin and cos of the wall directions 0, 180, 90, 270 degrees (top, bottom, left, right)
         self._wall_sin = torch.tensor([0.0, 0.0, 1.0, -1.0], dtype=dtype, device=self.device)
         self._wall_cos = torch.tensor([1.0, -1.0, 0.0, 0.0], dtype=dtype, device=self.device)
-        self._slot_offsets = (torch.arange(c.n_neighbors, device=self.device) * c.n_types)[:, None, None]
+        self._type_ids = torch.arange(c.n_types, device=self.device)[:, None, None]
+        self._box_ids = torch.arange(c.n_boxes, device=self.device)[:, None]
+        self._cells_per_row = math.ceil(c.size) + 1  # box coordinates are integers in [0, size]
+        self._cell_count = self._cells_per_row ** 2
+        self._earlier_agents = torch.ones(c.n_agents, c.n_agents, dtype=torch.bool, device=self.device).tril(-1)[..., None]
         self._carry_ids = torch.arange(c.n_colors + 1, device=self.device)[:, None, None]
         self._colour_ids = torch.arange(3, 3 + c.n_colors, device=self.device)[:, None]
-        n_others = c.n_boxes + (c.n_agents if c.see_other_agents else 0)
-        self._box_keys = _BoxKeys(n_others, cap=max(c.sensor_range, c.sensitivity) + 0.5)
-        # walls and the nearest others, merged: wall distances can be down to -1 (the spec's "- 1")
-        self._slot_keys = _BoxKeys(4 + c.n_neighbors, cap=max(c.sensor_range, c.sensitivity) + 0.5, offset=1.0)
+        # candidates: 4 walls (whose distances go down to -1: the spec's "- 1"), agents, boxes;
+        # farther than the sensor range nothing is sensed or picked, so distances clamp above it
+        self._first_agent = 4
+        self._first_box = 4 + (c.n_agents if c.see_other_agents else 0)
+        self._keys = _OrderKeys(self._first_box + c.n_boxes, low=-1.0, high=max(c.sensor_range, c.sensitivity) + 0.5)
         self._arena: _Arena | None = None
-        self._columns = torch.arange(batch_size, device=self.device)
 
     # ------------------------------------------------------------------ tasks and reset
     def task_tensors(self, tasks: Task | Sequence[Task], n: int | None = None):
@@ -340,10 +361,12 @@ class ForagingEnv:
         return self._observe_arena()
 
     def compile(self) -> None:
-        """Compile the distances and the sensing, the bulk of a step, with ``torch.compile``
-        (static shapes: each batch size compiles once)."""
-        self._observe = torch.compile(self._observe, dynamic=False)
-        self._box_order_keys = torch.compile(self._box_order_keys, dynamic=False)
+        """Compile the step and the sensing, each whole, with ``torch.compile`` (static shapes:
+        each batch size compiles once, in about a minute; the step then runs several times faster)."""
+        # every gather index is clamped into range, so inductor's per-element index checks can go
+        options = {"assert_indirect_indexing": False}
+        self._transition = torch.compile(self._transition, dynamic=False, options=options)
+        self._sense = torch.compile(self._sense, dynamic=False, options=options)
 
     @property
     def state(self) -> ForagingState:
@@ -365,6 +388,8 @@ class ForagingEnv:
                         box_pos=state.box_pos.to(self.dtype))
         if not torch.equal(state.box_pos, state.box_pos.round()):
             raise ConfigError("state.box_pos must hold integer cells: the spec places and respawns boxes on cells")
+        if ((state.box_pos < 0) | (state.box_pos > c.size)).any():
+            raise ConfigError(f"state.box_pos must lie in the arena, [0, size={c.size}]")
         for name in ("box_color", "target"):
             ids = getattr(state, name)
             if ((ids < 3) | (ids > 2 + c.n_colors)).any():
@@ -383,27 +408,41 @@ class ForagingEnv:
         ``drop_correct`` and ``respawn_cell`` (the cell a dropped box went to, -1 otherwise), and
         per environment ``terminated`` (max retrievals reached) and ``truncated`` (duration reached).
         """
-        c, a = self.config, self._arena
-        active = ~a.done
+        a = self._arena
+        (ax, ay, heading, carrying, bx, by, present, steps, retrieved, done,
+         observations, reward, picked, dropped, drop_correct, respawn) = self._transition(
+            wheels.to(self.dtype), a.ax, a.ay, a.heading, a.carrying, a.bx, a.by, a.color, a.present,
+            a.target, a.steps, a.retrieved, a.done, a.respawn_key)
+        self._arena = replace(a, ax=ax, ay=ay, heading=heading, carrying=carrying, bx=bx, by=by,
+                              present=present, steps=steps, retrieved=retrieved, done=done)
+        info = {"picked": picked.T, "dropped": dropped.T, "drop_correct": drop_correct.T,
+                "respawn_cell": respawn.transpose(0, 1),
+                "terminated": retrieved >= self.config.max_retrieves, "truncated": steps >= self.config.duration}
+        return observations, reward, done, info
+
+    def _transition(self, wheels, ax, ay, heading, carrying, bx, by, color, present, target, steps,
+                    retrieved, done, respawn_key):
+        """One step of every environment as a pure, branch-free function of the batch-last
+        tensors (so that ``torch.compile`` takes it whole); see ``step`` for the outputs."""
+        c = self.config
+        active = ~done
         # 1. kinematics, in the arena frame; an ended environment stays frozen
-        velocity = (wheels.to(self.dtype) @ self._kinematics_t).permute(2, 1, 0)     # (3, A, B)
+        velocity = (wheels @ self._kinematics_t).permute(2, 1, 0)                    # (3, A, B)
         moving = active.to(self.dtype) * c.time_step
-        ax = (a.ax + velocity[0] * moving).clamp(0.0, c.size)
-        ay = (a.ay + velocity[1] * moving).clamp(0.0, c.size)
+        ax = (ax + velocity[0] * moving).clamp(0.0, c.size)
+        ay = (ay + velocity[1] * moving).clamp(0.0, c.size)
         turn = torch.rad2deg(velocity[2] * (moving / WHEEL_RADIUS_FACTOR))
-        heading = torch.remainder(a.heading + turn, 360.0)
+        heading = torch.remainder(heading + turn, 360.0)
         # 2. distances from the new positions
-        keys = self._box_order_keys(ax, ay, a.bx, a.by, a.present)                          # (K, A, B)
+        keys = self._box_order_keys(ax, ay, bx, by, present)                                # (K, A, B)
         # 3. picks (agents in index order), then drops
-        picked = self._resolve_picks(keys, ax, ay, a, active)
+        picked = self._resolve_picks(keys, ax, ay, bx, by, present, carrying, active)
         picking = picked >= 0
-        present = a.present
-        if picking.any():
-            taken = self._box_flags(picked)
-            present = present & ~taken
-            keys = self._box_keys.remove(keys, taken)
-        carrying = torch.maximum(picked, a.carrying)  # an agent picks only when it carries nothing (-1)
-        is_target = a.color.gather(0, carrying.clamp(min=0)) == a.target
+        taken = self._box_flags(picked)
+        present = present & ~taken
+        keys = self._keys.remove(keys, taken)
+        carrying = torch.maximum(picked, carrying)  # an agent picks only when it carries nothing (-1)
+        is_target = color.gather(0, carrying.clamp(min=0)) == target
         dropping = (carrying >= 0) & (ax < 1) & active
         drop_correct = dropping & is_target
         reward = ((2 * is_target - 1) * picking + 2 * drop_correct).sum(dim=0)
@@ -411,63 +450,59 @@ class ForagingEnv:
         dropped = (carrying + 1) * dropping - 1
         carrying = (carrying + 1) * ~dropping - 1
         # 4. sensing; a box dropped this step stays absent until the next one
-        observations = self._observe(ax, ay, heading, carrying, keys, a)
-        bx, by = a.bx, a.by
-        respawn = torch.full((c.n_agents, a.ax.shape[1], 2), -1, dtype=torch.long, device=self.device)
-        if c.repositioning and dropping.any():
-            respawn = respawn_cells(a.respawn_key, a.steps, c.n_agents, int(c.size))         # (A, B, 2)
+        observations = self._observe(ax, ay, heading, carrying, keys, bx, by, color, target)
+        respawning = dropping & c.repositioning  # with repositioning off, a dropped box is gone
+        respawn = (respawn_cells(respawn_key, steps, c.n_agents, int(c.size)) + 1) * respawning[..., None] - 1
+        if c.repositioning:
             bx, by, present = self._respawn(dropped, respawn, bx, by, present)
         # 5. termination
-        retrieved = a.retrieved + drop_correct.sum(dim=0)
-        steps = a.steps + active.long()
-        done = a.done | (retrieved >= c.max_retrieves) | (steps >= c.duration)
-        self._arena = replace(a, ax=ax, ay=ay, heading=heading, carrying=carrying, bx=bx, by=by,
-                              present=present, steps=steps, retrieved=retrieved, done=done)
-        info = {"picked": picked.T, "dropped": dropped.T, "drop_correct": drop_correct.T,
-                "respawn_cell": torch.where(dropping[..., None], respawn, -1).transpose(0, 1),
-                "terminated": retrieved >= c.max_retrieves, "truncated": steps >= c.duration}
-        return observations, reward.to(self.dtype), done, info
+        retrieved = retrieved + drop_correct.sum(dim=0)
+        steps = steps + active.long()
+        done = done | (retrieved >= c.max_retrieves) | (steps >= c.duration)
+        return (ax, ay, heading, carrying, bx, by, present, steps, retrieved, done,
+                observations, reward.to(self.dtype), picked, dropped, drop_correct, respawn)
 
-    def _resolve_picks(self, keys, ax, ay, a: _Arena, active) -> torch.Tensor:
+    def _resolve_picks(self, keys, ax, ay, bx, by, present, carrying, active) -> torch.Tensor:
         """Box index each agent picks this step, -1 for none: ``(A, B)``.
 
         Sequential semantics (agents in index order, each taking its nearest present box,
         lowest index on a tie, if strictly within ``sensitivity``) without a loop: boxes sit on
-        integer cells, so an agent is within 0.5 of at most one cell; agents at the same cell
-        take the boxes stacked there in index order, one each, by rank.
+        integer cells and ``sensitivity <= 0.5``, so an agent is within reach of at most one
+        cell, and its nearest box is the lowest-index box there. The agents that reach the same
+        cell take the boxes stacked there one each: the agent with rank r among them (by agent
+        index) takes the r-th box after its nearest in the boxes' (cell, index) order.
         """
         c = self.config
+        K = bx.shape[0]
         nearest_key = keys.amin(dim=0)                                                     # (A, B)
-        nearest = self._box_keys.index(nearest_key).clamp(max=c.n_boxes - 1)
-        flat = nearest * ax.shape[1] + self._columns
-        near_dist = _distance(ax - a.bx.take(flat), ay - a.by.take(flat))
-        wants = (a.carrying < 0) & ~self._box_keys.is_absent(nearest_key) & (near_dist < c.sensitivity) & active
-        picks = torch.full_like(a.carrying, -1)
-        if not wants.any():
-            return picks
-        cols = wants.any(0).nonzero().squeeze(1)         # only environments where someone picks
-        wants, nearest = wants[:, cols], nearest[:, cols]
-        bx, by, present = a.bx[:, cols], a.by[:, cols], a.present[:, cols]
-        cx, cy = bx.gather(0, nearest), by.gather(0, nearest)                              # (A, b)
-        same_cell = (cx[:, None] == cx[None]) & (cy[:, None] == cy[None]) & wants[None]     # (A, A, b)
-        earlier = torch.ones(c.n_agents, c.n_agents, dtype=torch.bool, device=self.device).tril(-1)
-        rank = (same_cell & earlier[..., None]).sum(1)                                     # (A, b)
-        stacked = (bx[None] == cx[:, None]) & (by[None] == cy[:, None]) & present[None]     # (A, K, b)
-        chosen = stacked & (stacked.long().cumsum(1) - 1 == rank[:, None])
-        got = chosen.any(1) & wants
-        picks[:, cols] = torch.where(got, chosen.int().argmax(1), -1)
-        return picks
+        nearest = (self._keys.number(nearest_key) - self._first_box).clamp(min=0, max=K - 1)
+        cx, cy = bx.gather(0, nearest), by.gather(0, nearest)
+        wants = ((carrying < 0) & ~self._keys.is_absent(nearest_key)
+                 & (_distance(ax - cx, ay - cy) < c.sensitivity) & active)
+        same_cell = (cx[:, None] == cx[None]) & (cy[:, None] == cy[None]) & wants[None]    # (A, A, B)
+        rank = (same_cell & self._earlier_agents).sum(1) * wants                           # (A, B)
+        if not (torch.compiler.is_compiling() or bool(rank.any())):
+            return (nearest + 1) * wants - 1  # no two agents reach the same cell (the usual case)
+        # unique keys ordering the boxes by (cell, index), absent boxes after every cell
+        cell = (bx * self._cells_per_row + by).to(torch.int32) + self._cell_count * ~present
+        order = cell * K + self._box_ids                                                   # (K, B)
+        start = order.gather(0, nearest)
+        key = start
+        for r in range(1, c.n_agents):  # the r-th successor, for the agents of rank r
+            key = _OrderKeys.next_min(order[:, None], key)
+            start = start + (rank == r) * (key - start)
+        got = wants & (start // K == order.gather(0, nearest) // K)  # still in the same cell
+        return ((start % K) + 1) * got - 1
 
     def _box_flags(self, box_index: torch.Tensor) -> torch.Tensor:
         """(A, B) box indices (-1 for none) -> (K, B) bool: the box is named by some agent."""
-        counts = torch.zeros(self.config.n_boxes + 1, box_index.shape[1], dtype=torch.long, device=self.device)
-        counts.scatter_add_(0, box_index + 1, torch.ones_like(box_index))
-        return counts[1:] > 0
+        flags = torch.zeros(self.config.n_boxes + 1, box_index.shape[1], dtype=torch.bool, device=self.device)
+        return flags.scatter_(0, box_index + 1, True)[1:]
 
     def _respawn(self, dropped, respawn, bx, by, present):
         """Put each dropped box on its respawn cell (row K collects the agents that dropped nothing)."""
         K, B = bx.shape
-        slot = torch.where(dropped >= 0, dropped, K)
+        slot = dropped + (K + 1) * (dropped < 0)
         spare = torch.zeros(1, B, dtype=self.dtype, device=self.device)
         bx = torch.cat((bx, spare)).scatter_(0, slot, respawn[..., 0].to(self.dtype))[:K]
         by = torch.cat((by, spare)).scatter_(0, slot, respawn[..., 1].to(self.dtype))[:K]
@@ -476,72 +511,64 @@ class ForagingEnv:
     # ------------------------------------------------------------------ sensing
     def _observe_arena(self) -> torch.Tensor:
         a = self._arena
-        keys = self._box_order_keys(a.ax, a.ay, a.bx, a.by, a.present)
-        return self._observe(a.ax, a.ay, a.heading, a.carrying, keys, a)
+        return self._sense(a.ax, a.ay, a.heading, a.carrying, a.bx, a.by, a.color, a.present, a.target)
+
+    def _sense(self, ax, ay, heading, carrying, bx, by, color, present, target) -> torch.Tensor:
+        keys = self._box_order_keys(ax, ay, bx, by, present)
+        return self._observe(ax, ay, heading, carrying, keys, bx, by, color, target)
 
     def _box_order_keys(self, ax, ay, bx, by, present) -> torch.Tensor:
         """Every agent's order keys of every box, ``(K, A, B)``, absent boxes marked."""
-        return self._box_keys.keys(_distance(ax[None] - bx[:, None], ay[None] - by[:, None]), ~present[:, None])
+        dist = _distance(ax[None] - bx[:, None], ay[None] - by[:, None])
+        return self._keys.keys(dist, ~present[:, None], first=self._first_box)
 
-    def _observe(self, ax, ay, heading, carrying, keys, a: _Arena) -> torch.Tensor:
-        """Observation vectors ``(B, A, obs_dim)`` in the spec's order; ``keys``: the boxes'
+    def _observe(self, ax, ay, heading, carrying, box_keys, bx, by, color, target) -> torch.Tensor:
+        """Observation vectors ``(B, A, obs_dim)`` in the spec's order; ``box_keys``: the boxes'
         ``(K, A, B)`` order keys with the absent ones marked."""
         c = self.config
         n, rng = c.n_neighbors, c.sensor_range
         A, B = ax.shape
-        ex, ey, kind = a.bx, a.by, a.color                                                # (N, B) candidates
-        if c.see_other_agents:  # other agents come before boxes in the candidate order
+        wall = torch.stack((ax, c.size - ax - 1, ay, c.size - ay - 1))                      # (4, A, B)
+        groups = [self._keys.keys(wall, wall >= rng, first=0), box_keys]  # walls: strictly in range
+        ex, ey, kind = bx, by, color                                                      # (N, B) others
+        if c.see_other_agents:
+            is_self = torch.eye(A, dtype=torch.bool, device=self.device)[..., None]
+            dist = _distance(ax[None] - ax[:, None], ay[None] - ay[:, None])
+            groups.insert(1, self._keys.keys(dist, is_self, first=self._first_agent))
             ex, ey = torch.cat((ax, ex)), torch.cat((ay, ey))
             kind = torch.cat((torch.full((A, B), AGENT, device=self.device, dtype=torch.long), kind))
-            is_self = torch.eye(A, dtype=torch.bool, device=self.device)[..., None].expand(A, A, B)
-            agent_keys = self._box_keys.keys(_distance(ax[None] - ax[:, None], ay[None] - ay[:, None]), is_self)
-            keys = torch.cat((agent_keys, keys + A))  # box positions follow the agents'
-        # the nearest n sensed entities other than walls
-        best = [keys.amin(dim=0)]
-        for _ in range(n - 1):
-            best.append(self._box_keys.next_min(keys, best[-1]))
-        best = torch.stack(best)                                                           # (n, A, B)
-        flat = self._box_keys.index(best).clamp(max=ex.shape[0] - 1) * B + self._columns
-        o_dx, o_dy = ax - ex.take(flat), ay - ey.take(flat)
+        slots = self._keys.smallest(groups, n)                                            # (n, A, B)
+        number = self._keys.number(slots)
+        is_wall = number < 4
+        other = (number - 4).clamp(min=0, max=ex.shape[0] - 1).view(n * A, B)
+        o_dx = ax - ex.gather(0, other).view(n, A, B)
+        o_dy = ay - ey.gather(0, other).view(n, A, B)
         o_dist = _distance(o_dx, o_dy)
-        o_seen = ~self._box_keys.is_absent(best) & (o_dist <= rng)
-        # merged with the walls (strictly in range): stable, so walls win equal distances
-        wall = torch.stack((ax, c.size - ax - 1, ay, c.size - ay - 1))                      # (4, A, B)
-        cand_dist = torch.cat((wall, o_dist))                                              # (4 + n, A, B)
-        cand_keys = self._slot_keys.keys(cand_dist, torch.cat((wall >= rng, ~o_seen)))
-        slots = [cand_keys.amin(dim=0)]
-        for _ in range(n - 1):
-            slots.append(self._slot_keys.next_min(cand_keys, slots[-1]))
-        slots = torch.stack(slots)
-        seen = ~self._slot_keys.is_absent(slots)
-        pick = self._slot_keys.index(slots).clamp(max=3 + n)                               # (n, A, B) in 0..3+n
-        s_dist = cand_dist.gather(0, pick)
-        is_wall = pick < 4
-        other = (pick - 4).clamp(min=0)
-        g_dx, g_dy = o_dx.gather(0, other), o_dy.gather(0, other)
+        w_dist = wall.gather(0, number.clamp(max=3))
+        s_dist = w_dist * is_wall + o_dist * ~is_wall
+        present = ~self._keys.is_absent(slots)
+        wall_seen = present & is_wall
+        other_seen = present & ~is_wall & (o_dist <= rng)  # boxes and agents: range inclusive
+        seen = wall_seen | other_seen
         # sin and cos of atan2(dy, dx) are dy/d and dx/d; an entity on the agent reads angle 0
         # sums of masked terms, not torch.where (several times slower on CPU); exact, since every
         # term but one is multiplied by zero and all are finite
-        on_top = s_dist == 0
-        safe = s_dist + on_top  # 1 where the entity sits on the agent
-        other_seen = seen & ~is_wall
-        wall_seen = (seen & is_wall).to(self.dtype)
-        wall_pick = pick.clamp(max=3)
-        s_sin = self._wall_sin[wall_pick] * wall_seen + (g_dy / safe) * (other_seen & ~on_top)
-        s_cos = self._wall_cos[wall_pick] * wall_seen + (g_dx / safe) * (other_seen & ~on_top) + (other_seen & on_top)
-        s_kind = WALL * (seen & is_wall) + kind.take(flat).gather(0, other) * other_seen
+        on_top = o_dist == 0
+        safe = o_dist + on_top  # 1 where the entity sits on the agent
+        wall_side = number.clamp(max=3)
+        s_sin = self._wall_sin.take(wall_side) * wall_seen + (o_dy / safe) * (other_seen & ~on_top)
+        s_cos = self._wall_cos.take(wall_side) * wall_seen + (o_dx / safe) * (other_seen & ~on_top) + (other_seen & on_top)
+        s_kind = WALL * wall_seen + kind.gather(0, other).view(n, A, B) * other_seen
         heading_rad = torch.deg2rad(heading)
-        carried = (a.color.gather(0, carrying.clamp(min=0)) - 2) * (carrying >= 0)         # (A, B)
-        type_onehot = torch.zeros(n * c.n_types, A, B, dtype=self.dtype, device=self.device)
-        type_onehot.scatter_(0, s_kind + self._slot_offsets, 1.0)
+        carried = (color.gather(0, carrying.clamp(min=0)) - 2) * (carrying >= 0)           # (A, B)
         parts = torch.cat((
-            type_onehot,
+            (s_kind[:, None] == self._type_ids).to(self.dtype).view(n * c.n_types, A, B),
             s_dist * (seen / rng),
             s_sin,
             s_cos,
             torch.sin(heading_rad)[None], torch.cos(heading_rad)[None],
             (carried[None] == self._carry_ids).to(self.dtype),
-            (a.target == self._colour_ids)[:, None].to(self.dtype).expand(-1, A, -1),
+            (target == self._colour_ids)[:, None].to(self.dtype).expand(-1, A, -1),
         ))                                                                                 # (obs_dim, A, B)
         return parts.permute(2, 1, 0).contiguous()
 

@@ -53,6 +53,12 @@ def test_non_positive_lengths(field, value):
         ForagingConfig(**{field: value})
 
 
+def test_sensitivity_beyond_one_cell():
+    ForagingConfig(sensitivity=0.5)
+    with pytest.raises(ConfigError, match="sensitivity must be <= 0.5"):
+        ForagingConfig(sensitivity=0.51)
+
+
 @pytest.mark.parametrize("rate", [-0.1, 1.01, 2.0])
 def test_rate_target_outside_unit_interval(rate):
     with pytest.raises(ConfigError, match="rate_target"):
@@ -143,6 +149,14 @@ def test_non_integer_box_positions():
     env, state = _valid_state()
     state.box_pos[1, 3, 0] += 0.5
     with pytest.raises(ConfigError, match="box_pos"):
+        env.reset(state=state)
+
+
+@pytest.mark.parametrize("cell", [-1.0, 21.0])
+def test_box_positions_outside_the_arena(cell):
+    env, state = _valid_state()
+    state.box_pos[0, 2, 1] = cell
+    with pytest.raises(ConfigError, match="box_pos must lie in the arena"):
         env.reset(state=state)
 
 
