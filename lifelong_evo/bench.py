@@ -14,8 +14,6 @@ import torch
 
 from envs import TASKS, ForagingConfig, ForagingEnv, outputs_to_wheels
 
-from .runtime import configure_cpu
-
 
 WARM_UP_STEPS = 3
 """Untimed steps before the timed ones (they compile the step under --compile)."""
@@ -95,7 +93,7 @@ def main(argv=None) -> None:
     parser.add_argument("--compile", action="store_true", help="torch.compile the environment step (compiled during the untimed warm-up)")
     parser.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
     args = parser.parse_args(argv)
-    configure_cpu(args.threads)
+    torch.set_num_threads(args.threads)
     print(f"threads={torch.get_num_threads()} device={args.device} compile={'on' if args.compile else 'off'}")
     if args.algo:
         result = bench_algo(args.algo, args.population, args.evals, args.generations, args.device, args.compile)

@@ -20,7 +20,6 @@ from .metrics import fitness_stats, retention, summarise
 from .progress import Progress
 from .recording import NullRecorder, Recorder
 from .rundir import SPECIES_COLUMNS, MetricsWriter, RunDir, library_versions, metric_columns, read_json, write_json
-from .runtime import configure_cpu
 from .schedule import distinct_tasks
 
 
@@ -44,7 +43,7 @@ class LoopState:
 def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: bool = False,
         recorder: Recorder | None = None, progress: bool | None = None) -> dict[str, Any]:
     """Run (or continue) the lifelong experiment ``config`` into ``run_dir``; returns the summary."""
-    configure_cpu(config.threads)
+    torch.set_num_threads(config.threads)
     phases = config.phases()
     phase_names = [p.name for p in phases]
     tasks = distinct_tasks(phases)
