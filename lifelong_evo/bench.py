@@ -90,7 +90,7 @@ def main(argv=None) -> None:
     parser.add_argument("--evals", type=int, default=10, help="environments per controller (--algo)")
     parser.add_argument("--generations", type=int, default=2, help="generations timed after a warm-up (--algo)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
-    parser.add_argument("--compile", action="store_true", help="torch.compile the environment step (compiled during the untimed warm-up)")
+    parser.add_argument("--compile", action="store_true", help="torch.compile the environment's distance keys and sensing (compiled during the untimed warm-up)")
     parser.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)

@@ -12,7 +12,7 @@ from envs import ForagingConfig, ForagingEnv, ForagingState, Task, outputs_to_wh
 
 @functools.lru_cache(maxsize=8)
 def _env(config: ForagingConfig, batch_size: int, device: str, dtype: torch.dtype, compiled: bool) -> ForagingEnv:
-    """One environment object per batch shape, so that a compiled step is compiled once per shape."""
+    """One environment object per batch shape, so that a compiled sensing is compiled once per shape."""
     env = ForagingEnv(config, batch_size=batch_size, device=device, dtype=dtype)
     if compiled:
         env.compile()

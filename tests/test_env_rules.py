@@ -657,9 +657,9 @@ def test_respawn_stream_matches_a_plain_python_hash():
 
 
 def test_compiled_step_matches_eager():
-    """``compile()`` runs the same branch-free step through inductor: the same rewards, events
-    and discrete state, with pick conflicts and respawns exercised; floats agree to rounding
-    (inductor's vectorised sin and cos differ from eager's in the last bit)."""
+    """``compile()`` gives the same rewards, events and discrete state as eager, with pick
+    conflicts and respawns exercised; floats agree to rounding (inductor's vectorised sin and
+    cos differ from eager's in the last bit)."""
     config = ForagingConfig(n_boxes=12, max_retrieves=3, duration=60)
     eager, compiled = (ForagingEnv(config, batch_size=24, dtype=F64) for _ in range(2))
     compiled.compile()
