@@ -363,8 +363,8 @@ class ForagingEnv:
     def compile(self) -> None:
         """Compile the distance keys and the sensing, the bulk of a step, with ``torch.compile``
         (static shapes: each batch size compiles once, in 15-60 s). Compiling the whole
-        step instead measured slower here: the picks then lose their cheap path for steps
-        without conflicts, and inductor's loops over 5 agents split poorly across 2 threads."""
+        step measured slower here on 2 threads: inside a compiled graph the picks lose their
+        cheap path for the usual step in which no two agents reach one cell."""
         # every gather index is clamped into range, so inductor's per-element index checks can go
         options = {"assert_indirect_indexing": False}
         self._box_order_keys = torch.compile(self._box_order_keys, dynamic=False, options=options)
