@@ -12,6 +12,7 @@ the vectorised pick-conflict resolution in ``_resolve_picks`` exact.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, fields, replace
 from typing import Sequence
@@ -163,7 +164,7 @@ class _OrderKeys:
         room = (self.absent >> self.index_bits) - 1  # the largest fixed-point distance that fits
         self.scale = float(2 ** math.floor(math.log2(room / (high - low))))
         # the scale is a power of two: scaling is exact, so the shift by -low is exact too
-        self.origin = int(math.ceil(-low * self.scale))
+        self.origin = math.ceil(-low * self.scale)
 
     def keys(self, dist: torch.Tensor, absent: torch.Tensor, first: int) -> torch.Tensor:
         """``dist``: (N, A, B) distances of candidates ``first .. first + N - 1``; ``absent``: bool,
@@ -195,16 +196,9 @@ class _OrderKeys:
 
     def smallest(self, groups: Sequence[torch.Tensor], n: int) -> torch.Tensor:
         """The ``n`` smallest keys over the candidate groups (each (N_g, A, B)): ``(n, A, B)``."""
-        def minimum(values):
-            values = list(values)
-            result = values[0]
-            for value in values[1:]:
-                result = torch.minimum(result, value)
-            return result
-
-        best = [minimum(group.amin(dim=0) for group in groups)]
+        best = [functools.reduce(torch.minimum, [group.amin(dim=0) for group in groups])]
         for _ in range(n - 1):
-            best.append(minimum(self.next_min(group, best[-1]) for group in groups))
+            best.append(functools.reduce(torch.minimum, [self.next_min(group, best[-1]) for group in groups]))
         return torch.stack(best)
 
 
@@ -488,13 +482,13 @@ class ForagingEnv:
         # unique keys ordering the boxes by (cell, index), absent boxes after every cell
         cell = (bx * self._cells_per_row + by).to(torch.int32) + self._cell_count * ~present
         order = cell * K + self._box_ids                                                   # (K, B)
-        start = order.gather(0, nearest)
-        key = start
-        for r in range(1, c.n_agents):  # the r-th successor, for the agents of rank r
-            key = _OrderKeys.next_min(order[:, None], key)
-            start = start + (rank == r) * (key - start)
-        got = wants & (start // K == order.gather(0, nearest) // K)  # still in the same cell
-        return ((start % K) + 1) * got - 1
+        nearest_order = order.gather(0, nearest)
+        chosen = successor = nearest_order
+        for r in range(1, int(rank.max()) + 1):  # the r-th successor, for the agents of rank r
+            successor = _OrderKeys.next_min(order[:, None], successor)
+            chosen = chosen + (rank == r) * (successor - chosen)
+        got = wants & (chosen // K == nearest_order // K)  # still in the same cell
+        return (chosen % K + 1) * got - 1
 
     def _box_flags(self, box_index: torch.Tensor) -> torch.Tensor:
         """(A, B) box indices (-1 for none) -> (K, B) bool: the box is named by some agent."""
