@@ -404,41 +404,25 @@ class ForagingEnv:
         ``drop_correct`` and ``respawn_cell`` (the cell a dropped box went to, -1 otherwise), and
         per environment ``terminated`` (max retrievals reached) and ``truncated`` (duration reached).
         """
-        a = self._arena
-        (ax, ay, heading, carrying, bx, by, present, steps, retrieved, done,
-         observations, reward, picked, dropped, drop_correct, respawn) = self._transition(
-            wheels.to(self.dtype), a.ax, a.ay, a.heading, a.carrying, a.bx, a.by, a.color, a.present,
-            a.target, a.steps, a.retrieved, a.done, a.respawn_key)
-        self._arena = replace(a, ax=ax, ay=ay, heading=heading, carrying=carrying, bx=bx, by=by,
-                              present=present, steps=steps, retrieved=retrieved, done=done)
-        info = {"picked": picked.T, "dropped": dropped.T, "drop_correct": drop_correct.T,
-                "respawn_cell": respawn.transpose(0, 1),
-                "terminated": retrieved >= self.config.max_retrieves, "truncated": steps >= self.config.duration}
-        return observations, reward, done, info
-
-    def _transition(self, wheels, ax, ay, heading, carrying, bx, by, color, present, target, steps,
-                    retrieved, done, respawn_key):
-        """One step of every environment as a function of the batch-last tensors; see ``step``
-        for the outputs."""
-        c = self.config
-        active = ~done
+        c, a = self.config, self._arena
+        active = ~a.done
         # 1. kinematics, in the arena frame; an ended environment stays frozen
-        velocity = (wheels @ self._kinematics_t).permute(2, 1, 0)                    # (3, A, B)
+        velocity = (wheels.to(self.dtype) @ self._kinematics_t).permute(2, 1, 0)     # (3, A, B)
         moving = active.to(self.dtype) * c.time_step
-        ax = (ax + velocity[0] * moving).clamp(0.0, c.size)
-        ay = (ay + velocity[1] * moving).clamp(0.0, c.size)
+        ax = (a.ax + velocity[0] * moving).clamp(0.0, c.size)
+        ay = (a.ay + velocity[1] * moving).clamp(0.0, c.size)
         turn = torch.rad2deg(velocity[2] * (moving / WHEEL_RADIUS_FACTOR))
-        heading = torch.remainder(heading + turn, 360.0)
+        heading = torch.remainder(a.heading + turn, 360.0)
         # 2. distances from the new positions
-        keys = self._box_order_keys(ax, ay, bx, by, present)                                # (K, A, B)
+        keys = self._box_order_keys(ax, ay, a.bx, a.by, a.present)                          # (K, A, B)
         # 3. picks (agents in index order), then drops
-        picked = self._resolve_picks(keys, ax, ay, bx, by, present, carrying, active)
+        picked = self._resolve_picks(keys, ax, ay, a.bx, a.by, a.present, a.carrying, active)
         picking = picked >= 0
         taken = self._box_flags(picked)
-        present = present & ~taken
+        present = a.present & ~taken
         keys = self._keys.remove(keys, taken)
-        carrying = torch.maximum(picked, carrying)  # an agent picks only when it carries nothing (-1)
-        is_target = color.gather(0, carrying.clamp(min=0)) == target
+        carrying = torch.maximum(picked, a.carrying)  # an agent picks only when it carries nothing (-1)
+        is_target = a.color.gather(0, carrying.clamp(min=0)) == a.target
         dropping = (carrying >= 0) & (ax < 1) & active
         drop_correct = dropping & is_target
         reward = ((2 * is_target - 1) * picking + 2 * drop_correct).sum(dim=0)
@@ -446,17 +430,22 @@ class ForagingEnv:
         dropped = (carrying + 1) * dropping - 1
         carrying = (carrying + 1) * ~dropping - 1
         # 4. sensing; a box dropped this step stays absent until the next one
-        observations = self._observe(ax, ay, heading, carrying, keys, bx, by, color, target)
-        respawning = dropping & c.repositioning  # with repositioning off, a dropped box is gone
-        respawn = (respawn_cells(respawn_key, steps, c.n_agents, int(c.size)) + 1) * respawning[..., None] - 1
-        if c.repositioning:
+        observations = self._observe(ax, ay, heading, carrying, keys, a.bx, a.by, a.color, a.target)
+        bx, by = a.bx, a.by
+        respawn = torch.full((c.n_agents, a.ax.shape[1], 2), -1, dtype=torch.long, device=self.device)
+        if c.repositioning and bool(dropping.any()):  # with repositioning off, a dropped box is gone
+            respawn = (respawn_cells(a.respawn_key, a.steps, c.n_agents, int(c.size)) + 1) * dropping[..., None] - 1
             bx, by, present = self._respawn(dropped, respawn, bx, by, present)
         # 5. termination
-        retrieved = retrieved + drop_correct.sum(dim=0)
-        steps = steps + active.long()
-        done = done | (retrieved >= c.max_retrieves) | (steps >= c.duration)
-        return (ax, ay, heading, carrying, bx, by, present, steps, retrieved, done,
-                observations, reward.to(self.dtype), picked, dropped, drop_correct, respawn)
+        retrieved = a.retrieved + drop_correct.sum(dim=0)
+        steps = a.steps + active.long()
+        done = a.done | (retrieved >= c.max_retrieves) | (steps >= c.duration)
+        self._arena = replace(a, ax=ax, ay=ay, heading=heading, carrying=carrying, bx=bx, by=by,
+                              present=present, steps=steps, retrieved=retrieved, done=done)
+        info = {"picked": picked.T, "dropped": dropped.T, "drop_correct": drop_correct.T,
+                "respawn_cell": respawn.transpose(0, 1),
+                "terminated": retrieved >= c.max_retrieves, "truncated": steps >= c.duration}
+        return observations, reward.to(self.dtype), done, info
 
     def _resolve_picks(self, keys, ax, ay, bx, by, present, carrying, active) -> torch.Tensor:
         """Box index each agent picks this step, -1 for none: ``(A, B)``.
@@ -507,11 +496,8 @@ class ForagingEnv:
     # ------------------------------------------------------------------ sensing
     def _observe_arena(self) -> torch.Tensor:
         a = self._arena
-        return self._sense(a.ax, a.ay, a.heading, a.carrying, a.bx, a.by, a.color, a.present, a.target)
-
-    def _sense(self, ax, ay, heading, carrying, bx, by, color, present, target) -> torch.Tensor:
-        keys = self._box_order_keys(ax, ay, bx, by, present)
-        return self._observe(ax, ay, heading, carrying, keys, bx, by, color, target)
+        keys = self._box_order_keys(a.ax, a.ay, a.bx, a.by, a.present)
+        return self._observe(a.ax, a.ay, a.heading, a.carrying, keys, a.bx, a.by, a.color, a.target)
 
     def _box_order_keys(self, ax, ay, bx, by, present) -> torch.Tensor:
         """Every agent's order keys of every box, ``(K, A, B)``, absent boxes marked."""
@@ -540,7 +526,8 @@ class ForagingEnv:
         o_dx = ax - ex.gather(0, other).view(n, A, B)
         o_dy = ay - ey.gather(0, other).view(n, A, B)
         o_dist = _distance(o_dx, o_dy)
-        w_dist = wall.gather(0, number.clamp(max=3))
+        wall_side = number.clamp(max=3)
+        w_dist = wall.gather(0, wall_side)
         s_dist = w_dist * is_wall + o_dist * ~is_wall
         present = ~self._keys.is_absent(slots)
         wall_seen = present & is_wall
@@ -551,7 +538,6 @@ class ForagingEnv:
         # term but one is multiplied by zero and all are finite
         on_top = o_dist == 0
         safe = o_dist + on_top  # 1 where the entity sits on the agent
-        wall_side = number.clamp(max=3)
         s_sin = self._wall_sin.take(wall_side) * wall_seen + (o_dy / safe) * (other_seen & ~on_top)
         s_cos = self._wall_cos.take(wall_side) * wall_seen + (o_dx / safe) * (other_seen & ~on_top) + (other_seen & on_top)
         s_kind = WALL * wall_seen + kind.gather(0, other).view(n, A, B) * other_seen
