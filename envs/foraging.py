@@ -107,17 +107,20 @@ def respawn_cells(key: torch.Tensor, steps: torch.Tensor, n_agents: int, size: i
 
 @dataclass
 class _Arena:
-    """The working state, batch-last; see ``ForagingState`` for the meaning of each field."""
+    """The working state, batch-last; see ``ForagingState`` for the meaning of each field.
+    Box and colour ids are int32 here: compiled CPU code handles them in half the vector
+    width of int64 (and indexing accepts them). ``present`` is int32 0/1, not bool, because
+    compiled CPU code loads and stores bool vectors element by element."""
 
     ax: torch.Tensor          # (A, B) agent x
     ay: torch.Tensor          # (A, B) agent y
     heading: torch.Tensor     # (A, B)
-    carrying: torch.Tensor    # (A, B) long, -1 for none
+    carrying: torch.Tensor    # (A, B) int32, -1 for none
     bx: torch.Tensor          # (K, B) box x
     by: torch.Tensor          # (K, B) box y
-    color: torch.Tensor       # (K, B) long
-    present: torch.Tensor     # (K, B) bool
-    target: torch.Tensor      # (B,)
+    color: torch.Tensor       # (K, B) int32
+    present: torch.Tensor     # (K, B) int32 0/1
+    target: torch.Tensor      # (B,) int32
     season: torch.Tensor      # (B, n_colors)
     steps: torch.Tensor       # (B,)
     retrieved: torch.Tensor   # (B,)
@@ -128,18 +131,18 @@ class _Arena:
     def from_state(s: ForagingState) -> "_Arena":
         return _Arena(
             ax=s.agent_pos[..., 0].T.contiguous(), ay=s.agent_pos[..., 1].T.contiguous(),
-            heading=s.heading.T.contiguous(), carrying=s.carrying.T.contiguous(),
+            heading=s.heading.T.contiguous(), carrying=s.carrying.T.to(torch.int32).contiguous(),
             bx=s.box_pos[..., 0].T.contiguous(), by=s.box_pos[..., 1].T.contiguous(),
-            color=s.box_color.T.contiguous(), present=s.box_present.T.contiguous(),
-            target=s.target, season=s.season, steps=s.steps, retrieved=s.retrieved, done=s.done,
+            color=s.box_color.T.to(torch.int32).contiguous(), present=s.box_present.T.to(torch.int32).contiguous(),
+            target=s.target.to(torch.int32), season=s.season, steps=s.steps, retrieved=s.retrieved, done=s.done,
             respawn_key=s.respawn_key)
 
     def to_state(self) -> ForagingState:
         return ForagingState(
             agent_pos=torch.stack((self.ax.T, self.ay.T), -1), heading=self.heading.T.clone(),
-            carrying=self.carrying.T.clone(), box_pos=torch.stack((self.bx.T, self.by.T), -1),
-            box_color=self.color.T.clone(), box_present=self.present.T.clone(),
-            target=self.target.clone(), season=self.season.clone(), steps=self.steps.clone(),
+            carrying=self.carrying.T.long(), box_pos=torch.stack((self.bx.T, self.by.T), -1),
+            box_color=self.color.T.long(), box_present=self.present.T.bool(),
+            target=self.target.long(), season=self.season.clone(), steps=self.steps.clone(),
             retrieved=self.retrieved.clone(), done=self.done.clone(), respawn_key=self.respawn_key.clone())
 
 
@@ -174,13 +177,8 @@ class _OrderKeys:
         fixed = (dist.clamp(min=self.low, max=self.high) * self.scale).to(torch.int32) + self.origin
         return (fixed << self.index_bits) | tag
 
-    @staticmethod
-    def remove(keys: torch.Tensor, gone: torch.Tensor) -> torch.Tensor:
-        """Mark the candidates in ``gone`` ((N, B) bool) absent."""
-        return keys | (gone.to(torch.int32) << 30)[:, None]
-
     def number(self, key: torch.Tensor) -> torch.Tensor:
-        return (key & self.index_mask).long()
+        return key & self.index_mask
 
     def is_absent(self, key: torch.Tensor) -> torch.Tensor:
         return key >= self.absent
@@ -222,16 +220,13 @@ class ForagingEnv:
         self.dtype = dtype
         c = self.config
         self._kinematics_t = torch.tensor(KINEMATICS, dtype=dtype, device=self.device).T.contiguous()
-        # sin and cos of the wall directions 0, 180, 90, 270 degrees (top, bottom, left, right)
-        self._wall_sin = torch.tensor([0.0, 0.0, 1.0, -1.0], dtype=dtype, device=self.device)
-        self._wall_cos = torch.tensor([1.0, -1.0, 0.0, 0.0], dtype=dtype, device=self.device)
-        self._type_ids = torch.arange(c.n_types, device=self.device)[:, None, None]
-        self._box_ids = torch.arange(c.n_boxes, device=self.device)[:, None]
+        self._type_ids = torch.arange(c.n_types, dtype=torch.int32, device=self.device)[:, None, None]
+        self._box_ids = torch.arange(c.n_boxes, dtype=torch.int32, device=self.device)[:, None]
         self._cells_per_row = math.ceil(c.size) + 1  # box coordinates are integers in [0, size]
         self._cell_count = self._cells_per_row ** 2
         self._earlier_agents = torch.ones(c.n_agents, c.n_agents, dtype=torch.bool, device=self.device).tril(-1)[..., None]
-        self._carry_ids = torch.arange(c.n_colors + 1, device=self.device)[:, None, None]
-        self._colour_ids = torch.arange(3, 3 + c.n_colors, device=self.device)[:, None]
+        self._carry_ids = torch.arange(c.n_colors + 1, dtype=torch.int32, device=self.device)[:, None, None]
+        self._colour_ids = torch.arange(3, 3 + c.n_colors, dtype=torch.int32, device=self.device)[:, None]
         # candidates: 4 walls (whose distances go down to -1: the spec's "- 1"), agents, boxes;
         # farther than the sensor range nothing is sensed or picked, so distances clamp above it
         self._first_agent = 4
@@ -260,7 +255,8 @@ class ForagingEnv:
         """Change the task of the running episodes (a drift); boxes keep their colours."""
         if self._arena is None:
             raise ConfigError("set_tasks changes running episodes: call reset first")
-        self._arena.target, self._arena.season = self.task_tensors(tasks)
+        target, self._arena.season = self.task_tensors(tasks)
+        self._arena.target = target.to(torch.int32)
 
     def sample_state(self, tasks: Task | Sequence[Task], generator: torch.Generator | int | None = None,
                      n: int | None = None) -> ForagingState:
@@ -355,14 +351,13 @@ class ForagingEnv:
         return self._observe_arena()
 
     def compile(self) -> None:
-        """Compile the distance keys and the sensing, the bulk of a step, with ``torch.compile``
-        (static shapes: each batch size compiles once, in 15-60 s). Compiling the whole
-        step measured slower here on 2 threads: inside a compiled graph the picks lose their
-        cheap path for the usual step in which no two agents reach one cell."""
+        """Compile the step with ``torch.compile``, as the two fused graphs around the rare
+        pick conflicts: moving and reaching, then settling and sensing (static shapes: each
+        batch size compiles once, in 15-60 s). Observations outside ``step`` stay eager."""
         # every gather index is clamped into range, so inductor's per-element index checks can go
         options = {"assert_indirect_indexing": False}
-        self._box_order_keys = torch.compile(self._box_order_keys, dynamic=False, options=options)
-        self._observe = torch.compile(self._observe, dynamic=False, options=options)
+        self._move_and_reach = torch.compile(self._move_and_reach, dynamic=False, options=options)
+        self._settle_and_sense = torch.compile(self._settle_and_sense, dynamic=False, options=options)
 
     @property
     def state(self) -> ForagingState:
@@ -404,72 +399,55 @@ class ForagingEnv:
         ``drop_correct`` and ``respawn_cell`` (the cell a dropped box went to, -1 otherwise), and
         per environment ``terminated`` (max retrievals reached) and ``truncated`` (duration reached).
         """
-        c, a = self.config, self._arena
-        active = ~a.done
-        # 1. kinematics, in the arena frame; an ended environment stays frozen
+        a = self._arena
+        ax, ay, heading, nearest, wants, rank = self._move_and_reach(
+            wheels, a.ax, a.ay, a.heading, a.carrying, a.bx, a.by, a.present, a.done)
+        if bool(rank.any()):  # two agents reach one cell: rare, so resolved apart from the fused path
+            picked = self._resolve_conflicts(nearest, wants, rank, a.bx, a.by, a.present)
+        else:
+            picked = (nearest + 1) * wants - 1
+        observations, reward, arena, info = self._settle_and_sense(
+            ax, ay, heading, picked, a.carrying, a.bx, a.by, a.color, a.present, a.target,
+            a.steps, a.retrieved, a.done, a.respawn_key)
+        self._arena = replace(a, ax=ax, ay=ay, heading=heading, **arena)
+        return observations, reward, arena["done"], info
+
+    def _move_and_reach(self, wheels, ax, ay, heading, carrying, bx, by, present, done):
+        """Steps 1 and 2 of the spec: the moved agents, and each agent's nearest box and whether
+        it reaches it. ``rank`` (A, B) > 0 marks agents that share their reachable cell with an
+        earlier agent (see ``_resolve_conflicts``); ``nearest`` is a valid box index throughout."""
+        c = self.config
+        active = ~done
+        # kinematics in the arena frame; an ended environment stays frozen
         velocity = (wheels.to(self.dtype) @ self._kinematics_t).permute(2, 1, 0)     # (3, A, B)
         moving = active.to(self.dtype) * c.time_step
-        ax = (a.ax + velocity[0] * moving).clamp(0.0, c.size)
-        ay = (a.ay + velocity[1] * moving).clamp(0.0, c.size)
+        ax = (ax + velocity[0] * moving).clamp(0.0, c.size)
+        ay = (ay + velocity[1] * moving).clamp(0.0, c.size)
         turn = torch.rad2deg(velocity[2] * (moving / WHEEL_RADIUS_FACTOR))
-        heading = torch.remainder(a.heading + turn, 360.0)
-        # 2. distances from the new positions
-        keys = self._box_order_keys(ax, ay, a.bx, a.by, a.present)                          # (K, A, B)
-        # 3. picks (agents in index order), then drops
-        picked = self._resolve_picks(keys, ax, ay, a.bx, a.by, a.present, a.carrying, active)
-        picking = picked >= 0
-        taken = self._box_flags(picked)
-        present = a.present & ~taken
-        keys = self._keys.remove(keys, taken)
-        carrying = torch.maximum(picked, a.carrying)  # an agent picks only when it carries nothing (-1)
-        is_target = a.color.gather(0, carrying.clamp(min=0)) == a.target
-        dropping = (carrying >= 0) & (ax < 1) & active
-        drop_correct = dropping & is_target
-        reward = ((2 * is_target - 1) * picking + 2 * drop_correct).sum(dim=0)
-        # (x + 1) * flag - 1 is x where flag is set and -1 elsewhere
-        dropped = (carrying + 1) * dropping - 1
-        carrying = (carrying + 1) * ~dropping - 1
-        # 4. sensing; a box dropped this step stays absent until the next one
-        observations = self._observe(ax, ay, heading, carrying, keys, a.bx, a.by, a.color, a.target)
-        bx, by = a.bx, a.by
-        respawn = torch.full((c.n_agents, a.ax.shape[1], 2), -1, dtype=torch.long, device=self.device)
-        if c.repositioning and bool(dropping.any()):  # with repositioning off, a dropped box is gone
-            respawn = (respawn_cells(a.respawn_key, a.steps, c.n_agents, int(c.size)) + 1) * dropping[..., None] - 1
-            bx, by, present = self._respawn(dropped, respawn, bx, by, present)
-        # 5. termination
-        retrieved = a.retrieved + drop_correct.sum(dim=0)
-        steps = a.steps + active.long()
-        done = a.done | (retrieved >= c.max_retrieves) | (steps >= c.duration)
-        self._arena = replace(a, ax=ax, ay=ay, heading=heading, carrying=carrying, bx=bx, by=by,
-                              present=present, steps=steps, retrieved=retrieved, done=done)
-        info = {"picked": picked.T, "dropped": dropped.T, "drop_correct": drop_correct.T,
-                "respawn_cell": respawn.transpose(0, 1),
-                "terminated": retrieved >= c.max_retrieves, "truncated": steps >= c.duration}
-        return observations, reward.to(self.dtype), done, info
-
-    def _resolve_picks(self, keys, ax, ay, bx, by, present, carrying, active) -> torch.Tensor:
-        """Box index each agent picks this step, -1 for none: ``(A, B)``.
-
-        Sequential semantics (agents in index order, each taking its nearest present box,
-        lowest index on a tie, if strictly within ``sensitivity``) without a loop: boxes sit on
-        integer cells and ``sensitivity <= 0.5``, so an agent is within reach of at most one
-        cell, and its nearest box is the lowest-index box there. The agents that reach the same
-        cell take the boxes stacked there one each: the agent with rank r among them (by agent
-        index) takes the r-th box after its nearest in the boxes' (cell, index) order.
-        """
-        c = self.config
+        heading = torch.remainder(heading + turn, 360.0)
+        # boxes sit on integer cells and sensitivity <= 0.5, so an agent reaches at most one cell,
+        # and its nearest box (lowest index on a tie) is the lowest-index box there
         K = bx.shape[0]
-        nearest_key = keys.amin(dim=0)                                                     # (A, B)
+        nearest_key = self._box_order_keys(ax, ay, bx, by, present).amin(dim=0)          # (A, B)
         nearest = (self._keys.number(nearest_key) - self._first_box).clamp(min=0, max=K - 1)
         cx, cy = bx.gather(0, nearest), by.gather(0, nearest)
         wants = ((carrying < 0) & ~self._keys.is_absent(nearest_key)
                  & (_distance(ax - cx, ay - cy) < c.sensitivity) & active)
         same_cell = (cx[:, None] == cx[None]) & (cy[:, None] == cy[None]) & wants[None]    # (A, A, B)
-        rank = (same_cell & self._earlier_agents).sum(1) * wants                           # (A, B)
-        if not bool(rank.any()):
-            return (nearest + 1) * wants - 1  # no two agents reach the same cell (the usual case)
+        rank = (same_cell & self._earlier_agents).sum(1, dtype=torch.int32) * wants
+        return ax, ay, heading, nearest, wants, rank
+
+    def _resolve_conflicts(self, nearest, wants, rank, bx, by, present) -> torch.Tensor:
+        """Box index each agent picks, -1 for none, ``(A, B)``, when agents share a cell.
+
+        Sequential semantics (agents in index order, each taking its nearest present box) without
+        a loop: the agents that reach the same cell take the boxes stacked there one each, the
+        agent with rank r among them (by agent index) the r-th box after its nearest in the boxes'
+        (cell, index) order, if the cell holds that many.
+        """
+        K = bx.shape[0]
         # unique keys ordering the boxes by (cell, index), absent boxes after every cell
-        cell = (bx * self._cells_per_row + by).to(torch.int32) + self._cell_count * ~present
+        cell = (bx * self._cells_per_row + by).to(torch.int32) + self._cell_count * (1 - present)
         order = cell * K + self._box_ids                                                   # (K, B)
         nearest_order = order.gather(0, nearest)
         chosen = successor = nearest_order
@@ -479,15 +457,50 @@ class ForagingEnv:
         got = wants & (chosen // K == nearest_order // K)  # still in the same cell
         return (chosen % K + 1) * got - 1
 
+    def _settle_and_sense(self, ax, ay, heading, picked, carrying, bx, by, color, present, target,
+                          steps, retrieved, done, respawn_key):
+        """Steps 3 to 5 of the spec once the picks are known: drops, rewards, respawns, the new
+        observations and the termination. Returns ``(observations, rewards, changed arena
+        fields, info)``."""
+        c = self.config
+        active = ~done
+        picking = picked >= 0
+        present = present * (self._box_flags(picked) == 0)
+        carrying = torch.maximum(picked, carrying)  # an agent picks only when it carries nothing (-1)
+        is_target = color.gather(0, carrying.clamp(min=0)) == target
+        dropping = (carrying >= 0) & (ax < 1) & active
+        drop_correct = dropping & is_target
+        reward = ((2 * is_target - 1) * picking + 2 * drop_correct).sum(dim=0, dtype=torch.int32)
+        # (x + 1) * flag - 1 is x where flag is set and -1 elsewhere
+        dropped = (carrying + 1) * dropping - 1
+        carrying = (carrying + 1) * ~dropping - 1
+        # a box dropped this step stays absent until the next one
+        observations = self._observe(ax, ay, heading, carrying, self._box_order_keys(ax, ay, bx, by, present),
+                                     bx, by, color, target)
+        respawn = torch.full((c.n_agents, ax.shape[1], 2), -1, dtype=torch.long, device=self.device)
+        # eagerly, skipping the respawn when nobody drops saves time; in a compiled graph the
+        # branch would split the graph, and the fused respawn costs next to nothing
+        if c.repositioning and (torch.compiler.is_compiling() or bool(dropping.any())):
+            respawn = (respawn_cells(respawn_key, steps, c.n_agents, int(c.size)) + 1) * dropping[..., None] - 1
+            bx, by, present = self._respawn(dropped, respawn, bx, by, present)
+        retrieved = retrieved + drop_correct.sum(dim=0, dtype=torch.int32)
+        steps = steps + active.long()
+        terminated, truncated = retrieved >= c.max_retrieves, steps >= c.duration
+        arena = {"carrying": carrying, "bx": bx, "by": by, "present": present, "steps": steps,
+                 "retrieved": retrieved, "done": done | terminated | truncated}
+        info = {"picked": picked.T.long(), "dropped": dropped.T.long(), "drop_correct": drop_correct.T,
+                "respawn_cell": respawn.transpose(0, 1), "terminated": terminated, "truncated": truncated}
+        return observations, reward.to(self.dtype), arena, info
+
     def _box_flags(self, box_index: torch.Tensor) -> torch.Tensor:
-        """(A, B) box indices (-1 for none) -> (K, B) bool: the box is named by some agent."""
-        flags = torch.zeros(self.config.n_boxes + 1, box_index.shape[1], dtype=torch.bool, device=self.device)
-        return flags.scatter_(0, box_index + 1, True)[1:]
+        """(A, B) box indices (-1 for none) -> (K, B) int32: 1 where some agent names the box."""
+        flags = torch.zeros(self.config.n_boxes + 1, box_index.shape[1], dtype=torch.int32, device=self.device)
+        return flags.scatter_(0, (box_index + 1).long(), 1)[1:]
 
     def _respawn(self, dropped, respawn, bx, by, present):
         """Put each dropped box on its respawn cell (row K collects the agents that dropped nothing)."""
         K, B = bx.shape
-        slot = dropped + (K + 1) * (dropped < 0)
+        slot = (dropped + (K + 1) * (dropped < 0)).long()
         spare = torch.zeros(1, B, dtype=self.dtype, device=self.device)
         bx = torch.cat((bx, spare)).scatter_(0, slot, respawn[..., 0].to(self.dtype))[:K]
         by = torch.cat((by, spare)).scatter_(0, slot, respawn[..., 1].to(self.dtype))[:K]
@@ -502,7 +515,7 @@ class ForagingEnv:
     def _box_order_keys(self, ax, ay, bx, by, present) -> torch.Tensor:
         """Every agent's order keys of every box, ``(K, A, B)``, absent boxes marked."""
         dist = _distance(ax[None] - bx[:, None], ay[None] - by[:, None])
-        return self._keys.keys(dist, ~present[:, None], first=self._first_box)
+        return self._keys.keys(dist, (present == 0)[:, None], first=self._first_box)
 
     def _observe(self, ax, ay, heading, carrying, box_keys, bx, by, color, target) -> torch.Tensor:
         """Observation vectors ``(B, A, obs_dim)`` in the spec's order; ``box_keys``: the boxes'
@@ -538,8 +551,11 @@ class ForagingEnv:
         # term but one is multiplied by zero and all are finite
         on_top = o_dist == 0
         safe = o_dist + on_top  # 1 where the entity sits on the agent
-        s_sin = self._wall_sin.take(wall_side) * wall_seen + (o_dy / safe) * (other_seen & ~on_top)
-        s_cos = self._wall_cos.take(wall_side) * wall_seen + (o_dx / safe) * (other_seen & ~on_top) + (other_seen & on_top)
+        # the walls top, bottom, left, right lie at 0, 180, 90, 270 degrees
+        wall_sin = ((wall_side == 2).to(self.dtype) - (wall_side == 3).to(self.dtype)) * wall_seen
+        wall_cos = ((wall_side == 0).to(self.dtype) - (wall_side == 1).to(self.dtype)) * wall_seen
+        s_sin = wall_sin + (o_dy / safe) * (other_seen & ~on_top)
+        s_cos = wall_cos + (o_dx / safe) * (other_seen & ~on_top) + (other_seen & on_top)
         s_kind = WALL * wall_seen + kind.gather(0, other).view(n, A, B) * other_seen
         heading_rad = torch.deg2rad(heading)
         carried = (color.gather(0, carrying.clamp(min=0)) - 2) * (carrying >= 0)           # (A, B)
