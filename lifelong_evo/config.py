@@ -38,7 +38,7 @@ class RunConfig:
     threads: int = 1
     """Torch CPU threads (one is often faster for these small tensors, and keeps runs reproducible)."""
     compile: bool = False
-    """torch.compile the environment's distance keys and sensing (faster steps after 15-60 s of compiling per batch shape)."""
+    """torch.compile the environment's step (faster steps after 15-60 s of compiling per batch shape)."""
     record: bool = True
     """Write recording.rrd (Rerun)."""
     episodes_every: int = 0

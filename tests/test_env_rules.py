@@ -11,6 +11,7 @@ from collections import Counter
 
 import pytest
 import torch
+from torch._dynamo.utils import counters
 
 from envs import TASKS, ForagingConfig, ForagingEnv, Task, outputs_to_wheels
 from envs.foraging import hash31, respawn_cells
@@ -662,6 +663,7 @@ def test_compiled_step_matches_eager():
     cos differ from eager's in the last bit)."""
     config = ForagingConfig(n_boxes=12, max_retrieves=3, duration=60)
     eager, compiled = (ForagingEnv(config, batch_size=24, dtype=F64) for _ in range(2))
+    graphs_before = counters["stats"]["unique_graphs"]
     compiled.compile()
     generator = torch.Generator().manual_seed(5)
     start = eager.sample_state(TASKS["red"], generator)
@@ -682,6 +684,9 @@ def test_compiled_step_matches_eager():
         events["conflicts"] += int(((out_e[3]["picked"] >= 0).sum(dim=1) >= 2).sum())
         events["drops"] += int((out_e[3]["dropped"] >= 0).sum())
     assert events["conflicts"] >= 5 and events["drops"] >= 5, events
+    # steps with and without conflicts reuse the two graphs: a dtype that differed between the
+    # two pick paths would recompile them (and run 100x slower)
+    assert counters["stats"]["unique_graphs"] - graphs_before == 2
     for name in ("carrying", "box_pos", "box_present", "steps", "retrieved", "done"):
         assert torch.equal(getattr(compiled.state, name), getattr(eager.state, name)), name
     for name in ("agent_pos", "heading"):
