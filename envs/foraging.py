@@ -8,7 +8,7 @@ over environments or agents. Every environment carries its own task
 
 Coordinates are ``(x, y)`` with x the vertical axis: x = 0 is the top edge, where the drop zone
 is. Boxes always sit on integer cells (placement and respawn draw integers), which is what makes
-the vectorised pick-conflict resolution in ``_resolve_picks`` exact.
+the vectorised pick resolution (``_move_and_reach``, ``_resolve_conflicts``) exact.
 """
 from __future__ import annotations
 
@@ -478,8 +478,9 @@ class ForagingEnv:
         observations = self._observe(ax, ay, heading, carrying, self._box_order_keys(ax, ay, bx, by, present),
                                      bx, by, color, target)
         respawn = torch.full((c.n_agents, ax.shape[1], 2), -1, dtype=torch.long, device=self.device)
-        # eagerly, skipping the respawn when nobody drops saves time; in a compiled graph the
-        # branch would split the graph, and the fused respawn costs next to nothing
+        # with repositioning off, a dropped box is gone. Eagerly, skipping the respawn when nobody
+        # drops saves time; in a compiled graph the branch would split the graph, and the fused
+        # respawn costs next to nothing
         if c.repositioning and (torch.compiler.is_compiling() or bool(dropping.any())):
             respawn = (respawn_cells(respawn_key, steps, c.n_agents, int(c.size)) + 1) * dropping[..., None] - 1
             bx, by, present = self._respawn(dropped, respawn, bx, by, present)
