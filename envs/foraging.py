@@ -474,7 +474,9 @@ class ForagingEnv:
         # (x + 1) * flag - 1 is x where flag is set and -1 elsewhere
         dropped = (carrying + 1) * dropping - 1
         carrying = (carrying + 1) * ~dropping - 1
-        # a box dropped this step stays absent until the next one
+        # a box dropped this step stays absent until the next one. The box keys are recomputed,
+        # not handed over from _move_and_reach: in the compiled graphs recomputing them is
+        # cheaper than storing and reloading (K, A, B) keys
         observations = self._observe(ax, ay, heading, carrying, self._box_order_keys(ax, ay, bx, by, present),
                                      bx, by, color, target)
         respawn = torch.full((c.n_agents, ax.shape[1], 2), -1, dtype=torch.long, device=self.device)
