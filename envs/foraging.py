@@ -83,21 +83,23 @@ def outputs_to_wheels(outputs: torch.Tensor, config: ForagingConfig) -> torch.Te
 
 
 def hash31(x: torch.Tensor) -> torch.Tensor:
-    """A 31-bit integer mixer (no int64 overflow, so identical on every device and in Python)."""
+    """A 31-bit integer mixer of non-negative 31-bit integers, identical on every device and in
+    Python. In int32 the products wrap, which keeps their low 31 bits, all the mask keeps."""
     x = ((x >> 16) ^ x) * 0x45D9F3B & _HASH_MASK
     x = ((x >> 16) ^ x) * 0x45D9F3B & _HASH_MASK
     return (x >> 16) ^ x
 
 
 def respawn_cells(key: torch.Tensor, steps: torch.Tensor, n_agents: int, size: int) -> torch.Tensor:
-    """Cell where a box dropped by each agent at this step respawns: ``(A, B, 2)`` long.
+    """Cell where a box dropped by each agent at this step respawns: ``(A, B, 2)`` int32.
 
     A counter-based stream keyed by (environment key, step, agent): the k-th respawn of an
     environment does not depend on what else is in the batch, so every controller of a
     generation sees the same environments.
     """
-    agents = torch.arange(n_agents, device=key.device)[:, None]
-    base = hash31(hash31(key & _HASH_MASK) ^ steps)[None, :] ^ (agents * 2)
+    # int32 throughout: compiled CPU code handles int64 at half the vector width
+    agents = torch.arange(n_agents, dtype=torch.int32, device=key.device)[:, None]
+    base = hash31(hash31((key & _HASH_MASK).to(torch.int32)) ^ steps.to(torch.int32))[None, :] ^ (agents * 2)
     hx, hy = hash31(base), hash31(base ^ 1)
     high = size - 1
     x = BOX_LOW[0] + hx % (high - BOX_LOW[0])
@@ -220,12 +222,11 @@ class ForagingEnv:
         self.dtype = dtype
         c = self.config
         self._kinematics_t = torch.tensor(KINEMATICS, dtype=dtype, device=self.device).T.contiguous()
-        self._type_ids = torch.arange(c.n_types, dtype=torch.int32, device=self.device)[:, None, None]
+        self._slot_type_offsets = (torch.arange(c.n_neighbors, device=self.device) * c.n_types)[:, None, None]
         self._box_ids = torch.arange(c.n_boxes, dtype=torch.int32, device=self.device)[:, None]
         self._cells_per_row = math.ceil(c.size) + 1  # box coordinates are integers in [0, size]
         self._cell_count = self._cells_per_row ** 2
-        self._earlier_agents = torch.ones(c.n_agents, c.n_agents, dtype=torch.bool, device=self.device).tril(-1)[..., None]
-        self._carry_ids = torch.arange(c.n_colors + 1, dtype=torch.int32, device=self.device)[:, None, None]
+        self._earlier_agents = torch.ones(c.n_agents, c.n_agents, dtype=torch.int32, device=self.device).tril(-1)[..., None]
         self._colour_ids = torch.arange(3, 3 + c.n_colors, dtype=torch.int32, device=self.device)[:, None]
         # candidates: 4 walls (whose distances go down to -1: the spec's "- 1"), agents, boxes;
         # farther than the sensor range nothing is sensed or picked, so distances clamp above it
@@ -410,7 +411,7 @@ class ForagingEnv:
             ax, ay, heading, picked, a.carrying, a.bx, a.by, a.color, a.present, a.target,
             a.steps, a.retrieved, a.done, a.respawn_key)
         self._arena = replace(a, ax=ax, ay=ay, heading=heading, **arena)
-        return observations, reward, arena["done"], info
+        return _batch_first(observations), reward, arena["done"], info
 
     def _move_and_reach(self, wheels, ax, ay, heading, carrying, bx, by, present, done):
         """Steps 1 and 2 of the spec: the moved agents, and each agent's nearest box and whether
@@ -432,9 +433,10 @@ class ForagingEnv:
         nearest = (self._keys.number(nearest_key) - self._first_box).clamp(min=0, max=K - 1)
         cx, cy = bx.gather(0, nearest), by.gather(0, nearest)
         wants = ((carrying < 0) & ~self._keys.is_absent(nearest_key)
-                 & (_distance(ax - cx, ay - cy) < c.sensitivity) & active)
-        same_cell = (cx[:, None] == cx[None]) & (cy[:, None] == cy[None]) & wants[None]    # (A, A, B)
-        rank = (same_cell & self._earlier_agents).sum(1, dtype=torch.int32) * wants
+                 & (_distance(ax - cx, ay - cy) < c.sensitivity) & active).to(torch.int32)
+        wanted_cell = ((cx * self._cells_per_row + cy).to(torch.int32) + 1) * wants - 1  # -1: wants none
+        same_cell = (wanted_cell[:, None] == wanted_cell[None]).to(torch.int32)            # (A, A, B)
+        rank = (same_cell * self._earlier_agents).sum(1, dtype=torch.int32) * wants
         return ax, ay, heading, nearest, wants, rank
 
     def _resolve_conflicts(self, nearest, wants, rank, bx, by, present) -> torch.Tensor:
@@ -454,7 +456,7 @@ class ForagingEnv:
         for r in range(1, int(rank.max()) + 1):  # the r-th successor, for the agents of rank r
             successor = _OrderKeys.next_min(order[:, None], successor)
             chosen = chosen + (rank == r) * (successor - chosen)
-        got = wants & (chosen // K == nearest_order // K)  # still in the same cell
+        got = wants * (chosen // K == nearest_order // K)  # still in the same cell
         return (chosen % K + 1) * got - 1
 
     def _settle_and_sense(self, ax, ay, heading, picked, carrying, bx, by, color, present, target,
@@ -479,7 +481,7 @@ class ForagingEnv:
         # cheaper than storing and reloading (K, A, B) keys
         observations = self._observe(ax, ay, heading, carrying, self._box_order_keys(ax, ay, bx, by, present),
                                      bx, by, color, target)
-        respawn = torch.full((c.n_agents, ax.shape[1], 2), -1, dtype=torch.long, device=self.device)
+        respawn = torch.full((c.n_agents, ax.shape[1], 2), -1, dtype=torch.int32, device=self.device)
         # with repositioning off, a dropped box is gone. Eagerly, skipping the respawn when nobody
         # drops saves time; in a compiled graph the branch would split the graph, and the fused
         # respawn costs next to nothing
@@ -492,7 +494,7 @@ class ForagingEnv:
         arena = {"carrying": carrying, "bx": bx, "by": by, "present": present, "steps": steps,
                  "retrieved": retrieved, "done": done | terminated | truncated}
         info = {"picked": picked.T.long(), "dropped": dropped.T.long(), "drop_correct": drop_correct.T,
-                "respawn_cell": respawn.transpose(0, 1), "terminated": terminated, "truncated": truncated}
+                "respawn_cell": respawn.transpose(0, 1).long(), "terminated": terminated, "truncated": truncated}
         return observations, reward.to(self.dtype), arena, info
 
     def _box_flags(self, box_index: torch.Tensor) -> torch.Tensor:
@@ -513,7 +515,7 @@ class ForagingEnv:
     def _observe_arena(self) -> torch.Tensor:
         a = self._arena
         keys = self._box_order_keys(a.ax, a.ay, a.bx, a.by, a.present)
-        return self._observe(a.ax, a.ay, a.heading, a.carrying, keys, a.bx, a.by, a.color, a.target)
+        return _batch_first(self._observe(a.ax, a.ay, a.heading, a.carrying, keys, a.bx, a.by, a.color, a.target))
 
     def _box_order_keys(self, ax, ay, bx, by, present) -> torch.Tensor:
         """Every agent's order keys of every box, ``(K, A, B)``, absent boxes marked."""
@@ -521,8 +523,8 @@ class ForagingEnv:
         return self._keys.keys(dist, (present == 0)[:, None], first=self._first_box)
 
     def _observe(self, ax, ay, heading, carrying, box_keys, bx, by, color, target) -> torch.Tensor:
-        """Observation vectors ``(B, A, obs_dim)`` in the spec's order; ``box_keys``: the boxes'
-        ``(K, A, B)`` order keys with the absent ones marked."""
+        """Observation vectors, feature-major ``(obs_dim, A, B)``, in the spec's order;
+        ``box_keys``: the boxes' ``(K, A, B)`` order keys with the absent ones marked."""
         c = self.config
         n, rng = c.n_neighbors, c.sensor_range
         A, B = ax.shape
@@ -563,15 +565,28 @@ class ForagingEnv:
         heading_rad = torch.deg2rad(heading)
         carried = (color.gather(0, carrying.clamp(min=0)) - 2) * (carrying >= 0)           # (A, B)
         parts = torch.cat((
-            (s_kind[:, None] == self._type_ids).to(self.dtype).view(n * c.n_types, A, B),
+            _one_hot_rows(s_kind + self._slot_type_offsets, n * c.n_types, self.dtype),
             s_dist * (seen / rng),
             s_sin,
             s_cos,
             torch.sin(heading_rad)[None], torch.cos(heading_rad)[None],
-            (carried[None] == self._carry_ids).to(self.dtype),
+            _one_hot_rows(carried[None], c.n_colors + 1, self.dtype),
             (target == self._colour_ids)[:, None].to(self.dtype).expand(-1, A, -1),
         ))                                                                                 # (obs_dim, A, B)
-        return parts.permute(2, 1, 0).contiguous()
+        return parts
+
+
+def _batch_first(features: torch.Tensor) -> torch.Tensor:
+    """``(obs_dim, A, B)`` -> ``(B, A, obs_dim)``. Kept out of the compiled graph: torch's copy
+    kernel transposes faster than the compiled loop, which also had to write ``features`` first."""
+    return features.permute(2, 1, 0).contiguous()
+
+
+def _one_hot_rows(index: torch.Tensor, n_rows: int, dtype: torch.dtype) -> torch.Tensor:
+    """``(n_rows, *index.shape[1:])`` with a 1 in row ``index[j]`` for every ``j``: a scatter, so
+    that compiled code computes ``index`` once, not once per row."""
+    rows = torch.zeros(n_rows, *index.shape[1:], dtype=dtype, device=index.device)
+    return rows.scatter_(0, index.long(), 1.0)
 
 
 def _distance(dx: torch.Tensor, dy: torch.Tensor) -> torch.Tensor:
