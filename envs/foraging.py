@@ -476,11 +476,8 @@ class ForagingEnv:
         # (x + 1) * flag - 1 is x where flag is set and -1 elsewhere
         dropped = (carrying + 1) * dropping - 1
         carrying = (carrying + 1) * ~dropping - 1
-        # a box dropped this step stays absent until the next one. The box keys are recomputed,
-        # not handed over from _move_and_reach: in the compiled graphs recomputing them is
-        # cheaper than storing and reloading (K, A, B) keys
-        observations = self._observe(ax, ay, heading, carrying, self._box_order_keys(ax, ay, bx, by, present),
-                                     bx, by, color, target)
+        # a box dropped this step stays absent until the next one
+        observations = self._observe(ax, ay, heading, carrying, bx, by, color, present, target)
         respawn = torch.full((c.n_agents, ax.shape[1], 2), -1, dtype=torch.int32, device=self.device)
         # with repositioning off, a dropped box is gone. Eagerly, skipping the respawn when nobody
         # drops saves time; in a compiled graph the branch would split the graph, which costs more
@@ -514,22 +511,23 @@ class ForagingEnv:
     # ------------------------------------------------------------------ sensing
     def _observe_arena(self) -> torch.Tensor:
         a = self._arena
-        keys = self._box_order_keys(a.ax, a.ay, a.bx, a.by, a.present)
-        return _batch_first(self._observe(a.ax, a.ay, a.heading, a.carrying, keys, a.bx, a.by, a.color, a.target))
+        return _batch_first(self._observe(a.ax, a.ay, a.heading, a.carrying, a.bx, a.by, a.color, a.present, a.target))
 
     def _box_order_keys(self, ax, ay, bx, by, present) -> torch.Tensor:
         """Every agent's order keys of every box, ``(K, A, B)``, absent boxes marked."""
         dist = _distance(ax[None] - bx[:, None], ay[None] - by[:, None])
         return self._keys.keys(dist, (present == 0)[:, None], first=self._first_box)
 
-    def _observe(self, ax, ay, heading, carrying, box_keys, bx, by, color, target) -> torch.Tensor:
-        """Observation vectors, feature-major ``(obs_dim, A, B)``, in the spec's order;
-        ``box_keys``: the boxes' ``(K, A, B)`` order keys with the absent ones marked."""
+    def _observe(self, ax, ay, heading, carrying, bx, by, color, present, target) -> torch.Tensor:
+        """Observation vectors, feature-major ``(obs_dim, A, B)``, in the spec's order. The box
+        keys are computed here, not handed over from ``_move_and_reach``: in the compiled graphs
+        recomputing them is cheaper than storing and reloading ``(K, A, B)`` keys."""
         c = self.config
         n, rng = c.n_neighbors, c.sensor_range
         A, B = ax.shape
         wall = torch.stack((ax, c.size - ax - 1, ay, c.size - ay - 1))                      # (4, A, B)
-        groups = [self._keys.keys(wall, wall >= rng, first=0), box_keys]  # walls: strictly in range
+        groups = [self._keys.keys(wall, wall >= rng, first=0),  # walls: strictly in range
+                  self._box_order_keys(ax, ay, bx, by, present)]
         ex, ey, kind = bx, by, color                                                      # (N, B) others
         if c.see_other_agents:
             is_self = torch.eye(A, dtype=torch.bool, device=self.device)[..., None]
