@@ -33,6 +33,11 @@ class BatchedPolicy(Protocol):
 
     def __call__(self, observations: torch.Tensor) -> torch.Tensor: ...
 
+    def shard(self, start: int, stop: int) -> "BatchedPolicy":
+        """Controllers ``start .. stop - 1`` as a policy of their own, giving the outputs they
+        give in the whole population, up to float rounding (the evaluator's threads each play
+        one shard)."""
+
 
 @dataclass
 class GenerationReport:

@@ -86,6 +86,9 @@ class MLPPolicy:
             x = x.sigmoid_() if i == last else x.tanh_()
         return x.reshape(p, e, a, N_OUTPUTS)
 
+    def shard(self, start: int, stop: int) -> "MLPPolicy":
+        return MLPPolicy(self.params[start:stop], self.layer_sizes)
+
     @classmethod
     def from_export(cls, exported: dict, device: str | torch.device = "cpu") -> "MLPPolicy":
         """A one-controller policy from an ``export()`` dict (``layer_sizes``, ``parameters``)."""

@@ -206,6 +206,16 @@ class CompiledPopulation:
         """Hidden depths evaluated per call (each after the first costs one small matmul)."""
         return len(self.blocks) - 1
 
+    def shard(self, start: int, stop: int) -> "CompiledPopulation":
+        """Genomes ``start .. stop - 1`` (it keeps the population's depths, which only adds
+        exact no-op steps for shallower shards)."""
+        return CompiledPopulation(
+            w_in=self.w_in[start:stop], bias=self.bias[start:stop],
+            blocks=[(first, last, None if w is None else w[start:stop]) for first, last, w in self.blocks],
+            n_hidden=self.n_hidden, genome_keys=self.genome_keys[start:stop],
+            unconnected_outputs=self.unconnected_outputs, depths=self.depths[start:stop],
+            zero_outputs=self.zero_outputs[start:stop])
+
     def __call__(self, observations: torch.Tensor) -> torch.Tensor:
         P, E, A, n = observations.shape
         if P != self.population_size or n != self.n_inputs:

@@ -354,9 +354,13 @@ class ForagingEnv:
     def compile(self) -> None:
         """Compile the step with ``torch.compile``, as the two fused graphs around the rare
         pick conflicts: moving and reaching, then settling and sensing (static shapes: each
-        batch size compiles once, in 15-60 s). Observations outside ``step`` stay eager."""
+        batch size compiles once, in 15-60 s). Observations outside ``step`` stay eager.
+
+        The graphs run under inductor's C++ wrapper, which releases the GIL: several Python
+        threads, each stepping its own environment, then run in parallel (see
+        ``lifelong_evo.evaluate``)."""
         # every gather index is clamped into range, so inductor's per-element index checks can go
-        options = {"assert_indirect_indexing": False}
+        options = {"assert_indirect_indexing": False, "cpp_wrapper": True}
         self._move_and_reach = torch.compile(self._move_and_reach, dynamic=False, options=options)
         self._settle_and_sense = torch.compile(self._settle_and_sense, dynamic=False, options=options)
 

@@ -36,6 +36,7 @@ _FIELD_DOCS = {
     "checkpoint_every": "checkpoint every this many generations",
     "device": "torch device (cpu, cuda, ...)",
     "threads": "torch CPU threads",
+    "eval_threads": "evaluation threads, each playing a slice of the population (use with --compile --threads 1)",
     "episodes_every": "also record episodes every this many generations (0: task ends only)",
 }
 

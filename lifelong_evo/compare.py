@@ -2,7 +2,7 @@
 
 Finds every run directory (config.json + summary.json) at or under the given paths (so a sweep
 folder works), groups the runs by configuration (config.json without seed, run name, library
-versions and the options that do not change results: record, threads, device, checkpoint_every,
+versions and the options that do not change results: record, threads, eval_threads, device, checkpoint_every,
 episodes_every) and writes, to ``--out`` (default: the one folder given, else ``comparison/``):
 
 ``comparison.md``    an overview (one line per configuration), then per configuration the paper's

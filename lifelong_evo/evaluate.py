@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import functools
+from concurrent.futures import ThreadPoolExecutor
 from typing import Sequence
 
 import torch
@@ -10,9 +11,11 @@ from algorithms.base import BatchedPolicy
 from envs import ForagingConfig, ForagingEnv, ForagingState, Task, outputs_to_wheels
 
 
-@functools.lru_cache(maxsize=8)
-def _env(config: ForagingConfig, batch_size: int, device: str, dtype: torch.dtype, compiled: bool) -> ForagingEnv:
-    """One environment object per batch shape, so that a compiled sensing is compiled once per shape."""
+@functools.lru_cache(maxsize=16)
+def _env(config: ForagingConfig, batch_size: int, device: str, dtype: torch.dtype, compiled: bool,
+         worker: int) -> ForagingEnv:
+    """One environment object per batch shape and worker (each worker steps its own), so that a
+    compiled step is compiled once per shape."""
     env = ForagingEnv(config, batch_size=batch_size, device=device, dtype=dtype)
     if compiled:
         env.compile()
@@ -26,18 +29,47 @@ def sample_episodes(config: ForagingConfig, tasks: Sequence[Task], n_envs: int, 
     return ForagingState.cat([sampler.sample_state(task, generator) for task in tasks])
 
 
+def shard_bounds(population: int, workers: int) -> list[tuple[int, int]]:
+    """Contiguous ``(start, stop)`` slices of the population, one per worker, sizes differing
+    by at most one (so at most two batch shapes to compile)."""
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    edges = [population * i // min(workers, population) for i in range(min(workers, population) + 1)]
+    return list(zip(edges[:-1], edges[1:]))
+
+
 def run_episodes(policy: BatchedPolicy, config: ForagingConfig, episodes: ForagingState,
                  device: str | torch.device = "cpu", dtype: torch.dtype = torch.float32,
-                 compiled: bool = False) -> torch.Tensor:
+                 compiled: bool = False, workers: int = 1) -> torch.Tensor:
     """Every controller of ``policy`` plays every episode of ``episodes`` (E initial states);
     returns the summed rewards ``(population, E)``.
 
-    The batch is population-major, ``(P * E)`` environments, so the policy sees its
-    observations as ``(P, E, agents, obs_dim)`` and each controller meets the same E episodes.
+    With ``workers > 1`` the population is split into that many shards (``policy.shard``), each
+    played in its own thread by its own environment. The compiled step releases the GIL, so the
+    shards run in parallel; every environment is computed independently, so the numbers do not
+    depend on ``workers``.
     """
+    bounds = shard_bounds(policy.population_size, workers)
+    if len(bounds) == 1:
+        return _play(policy, config, episodes, device, dtype, compiled, worker=0)
+    if not callable(getattr(policy, "shard", None)):
+        raise ValueError(f"{type(policy).__name__} has no shard(start, stop), which workers > 1 needs: "
+                         "implement it or use one worker")
+    shards = [policy.shard(start, stop) for start, stop in bounds]
+    with ThreadPoolExecutor(len(shards), thread_name_prefix="evaluate") as pool:
+        totals = pool.map(lambda worker: _play(shards[worker], config, episodes, device, dtype, compiled, worker),
+                          range(len(shards)))
+        return torch.cat(list(totals))
+
+
+def _play(policy: BatchedPolicy, config: ForagingConfig, episodes: ForagingState, device, dtype,
+          compiled: bool, worker: int) -> torch.Tensor:
+    """``run_episodes`` for one worker. The batch is population-major, ``(P * E)``
+    environments, so the policy sees its observations as ``(P, E, agents, obs_dim)`` and each
+    controller meets the same E episodes."""
     population = policy.population_size
     n_episodes = episodes.target.shape[0]
-    env = _env(config, population * n_episodes, str(device), dtype, compiled)
+    env = _env(config, population * n_episodes, str(device), dtype, compiled, worker)
     tiled = episodes.index(torch.arange(n_episodes).repeat(population))
     observations = env.reset(state=tiled)
     totals = torch.zeros(population * n_episodes, dtype=dtype, device=device)
@@ -53,9 +85,10 @@ def run_episodes(policy: BatchedPolicy, config: ForagingConfig, episodes: Foragi
 
 def evaluate(policy: BatchedPolicy, config: ForagingConfig, tasks: Sequence[Task], n_envs: int,
              generator: torch.Generator, device: str | torch.device = "cpu",
-             dtype: torch.dtype = torch.float32, compiled: bool = False) -> torch.Tensor:
+             dtype: torch.dtype = torch.float32, compiled: bool = False, workers: int = 1) -> torch.Tensor:
     """Fitness ``(len(tasks), population)``: the mean episode reward of every controller over
-    ``n_envs`` fresh environments per task, drawn from ``generator`` and shared by all controllers."""
+    ``n_envs`` fresh environments per task, drawn from ``generator`` and shared by all controllers
+    (``workers``: see ``run_episodes``)."""
     episodes = sample_episodes(config, tasks, n_envs, generator, device, dtype)
-    totals = run_episodes(policy, config, episodes, device, dtype, compiled)
+    totals = run_episodes(policy, config, episodes, device, dtype, compiled, workers)
     return totals.view(policy.population_size, len(tasks), n_envs).mean(dim=-1).T

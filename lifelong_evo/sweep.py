@@ -25,8 +25,8 @@ maximising ``C(phase 1) + R_top(task of phase 0 at the end of phase 1)`` from ``
 (current performance plus retention of the top individual at the end of the second task; ties go
 to the smaller lambda), reported as its own row with the chosen lambda per seed.
 
-Ray: by default a local Ray with one CPU per core; each trial reserves ``--threads`` CPUs (1 unless
-told otherwise) and ``--gpus-per-trial`` GPUs (runs then use ``--device cuda``). ``--address
+Ray: by default a local Ray with one CPU per core; each trial reserves ``--threads`` times ``--eval-threads``
+CPUs (1 unless told otherwise) and ``--gpus-per-trial`` GPUs (runs then use ``--device cuda``). ``--address
 HOST:PORT`` (or ``auto``) runs on an existing cluster (``ray start --head`` on one machine,
 ``ray start --address=HOST:6379`` on the others); the lifelong_evo, algorithms and envs packages
 are shipped to the workers, the output folder must be on storage every node sees.
@@ -60,7 +60,8 @@ _TYPES = {name: type(getattr(RunConfig(), name)) for name in RUN_FIELDS}
 _NESTED = {"env": "env", "algo_options": "option"}
 """Nested tables of RunConfig and the repeatable flag that sets their keys."""
 _LABELS = {"reg": "reg", "seed": "seed", "population": "pop", "generations": "gen", "evals": "evals",
-           "retention_every": "ret", "checkpoint_every": "ckpt", "threads": "threads", "episodes_every": "ep"}
+           "retention_every": "ret", "checkpoint_every": "ckpt", "threads": "threads", "eval_threads": "evalthreads",
+           "episodes_every": "ep"}
 _NOT_OUTCOME = ("record", "episodes_every")
 """Settings a finished or resumed run may differ in (as ``loop.run`` allows on resume)."""
 STATUSES = ("done", "failed", "pending")
@@ -407,7 +408,7 @@ def selection_score(summary: dict[str, Any]) -> float | None:
     return float(current[1]) + float(retained)
 
 
-_SAME_CONFIGURATION_IGNORES = ("seed", "reg", "versions", "name", "record", "threads", "device",
+_SAME_CONFIGURATION_IGNORES = ("seed", "reg", "versions", "name", "record", "threads", "eval_threads", "device",
                                "checkpoint_every", "episodes_every")
 """Keys left out when grouping runs for the m.s. lambda: the seed, lambda, and what does not change
 results (as ``plots.IGNORED_CONFIG_KEYS``, by which ``compare`` groups)."""
@@ -533,6 +534,11 @@ def aggregate(sweep_dir: Path, grid: Grid) -> str:
 
 # --------------------------------------------------------------------------------------------- driver
 
+def _cpus(config: RunConfig) -> int:
+    """CPUs a trial keeps busy: its evaluation threads, each with its torch threads."""
+    return config.threads * config.eval_threads
+
+
 def _start_ray(args: argparse.Namespace):
     import ray
 
@@ -627,10 +633,10 @@ def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep
         if args.gpus_per_trial > resources.get("GPU", 0):
             raise CliError(f"the Ray cluster has {resources.get('GPU', 0):g} GPU(s), a trial asks for "
                            f"{args.gpus_per_trial:g}: drop --gpus-per-trial or add GPU nodes")
-        widest = max(t.config.threads for t in to_run)
+        widest = max(_cpus(t.config) for t in to_run)
         if widest > resources.get("CPU", 0):
             raise CliError(f"the Ray cluster has {resources.get('CPU', 0):g} CPUs, a trial asks for {widest} "
-                           "(--threads): lower --threads")
+                           "(--threads times --eval-threads): lower them")
         remote = ray.remote(run_trial)
         limit = args.workers or len(to_run)
         queue = list(to_run)
@@ -639,7 +645,7 @@ def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep
             while queue or in_flight:
                 while queue and len(in_flight) < limit:
                     trial = queue.pop(0)
-                    ref = remote.options(num_cpus=trial.config.threads, num_gpus=args.gpus_per_trial,
+                    ref = remote.options(num_cpus=_cpus(trial.config), num_gpus=args.gpus_per_trial,
                                          max_retries=args.retries, name=f"trial:{trial.name}").remote(
                         trial.config.to_dict(), str(sweep_dir / trial.name), args.overwrite)
                     in_flight[ref] = trial

@@ -106,9 +106,9 @@ def test_same_seed_same_numbers(smoke_runs, tmp_path):
 
 
 def test_compiled_run_gives_the_same_numbers(smoke_runs, tmp_path):
-    """``--compile`` changes the speed of a run, not its numbers."""
+    """``--compile`` and ``--eval-threads`` change the speed of a run, not its numbers."""
     assert main(["--algo", "neat", "--reg", "2", "--preset", "smoke", "--out", str(tmp_path), "--name", "compiled",
-                 "--compile", "--no-record", "--quiet"]) == 0
+                 "--compile", "--eval-threads", "2", "--no-record", "--quiet"]) == 0
     assert (tmp_path / "compiled/metrics.csv").read_text() == (smoke_runs / "neat/metrics.csv").read_text()
 
 

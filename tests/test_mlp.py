@@ -70,6 +70,19 @@ def test_shape_errors():
         MLPPolicy(torch.zeros(2, 10), (5, 4, 3))  # wrong parameter count
 
 
+def test_shard_gives_the_populations_outputs():
+    sizes = (41, 16, 3)
+    _, flat = reference_nets(sizes, 5, seed=2)
+    policy = MLPPolicy(flat, sizes)
+    obs = torch.rand(5, 3, 2, 41)
+    together = policy(obs)
+    for start, stop in ((0, 2), (2, 5), (4, 5)):
+        shard = policy.shard(start, stop)
+        assert shard.population_size == stop - start
+        # vectorised activations round their last few elements apart, so not bit for bit
+        torch.testing.assert_close(shard(obs[start:stop]), together[start:stop], rtol=0, atol=1e-6)
+
+
 def test_from_export_matches_population_row():
     sizes = (6, 4, 3)
     _, flat = reference_nets(sizes, 3, seed=1)

@@ -320,6 +320,19 @@ def test_padding_does_not_change_a_genome():
         assert torch.allclose(alone, together[i:i + 1], atol=1e-6)
 
 
+def test_shard_gives_the_populations_outputs():
+    random.seed(7)
+    config = _fresh_config(overrides=HEAVY)
+    genomes = _mutated_genomes(config, 12, 0, 150)
+    policy = compile_genomes(genomes, config)
+    obs = _observations(len(genomes), 3, 5, 41, torch.Generator().manual_seed(8))
+    together = policy(obs)
+    for start, stop in ((0, 5), (5, 12), (11, 12)):
+        shard = policy.shard(start, stop)
+        assert shard.population_size == stop - start and shard.genome_keys == policy.genome_keys[start:stop]
+        torch.testing.assert_close(shard(obs[start:stop]), together[start:stop], rtol=0, atol=1e-6)
+
+
 @pytest.mark.parametrize("start,K,rows", [(1, 3, 50), (2, 3, 50), (3, 2, 50), (3, 3, 50),
                                            (1, 1, 5), (4, 3, 50), (11, 3, 50), (8, 1, 6)])
 def test_add_weighted_both_paths(start, K, rows):

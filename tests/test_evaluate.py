@@ -1,0 +1,50 @@
+"""The evaluator's threads: each plays its own shard of the population, as that shard alone would."""
+import pytest
+import torch
+
+from algorithms.mlp import MLPPolicy, layer_sizes_for, n_parameters
+from envs import TASKS, ForagingConfig
+from lifelong_evo.evaluate import evaluate, shard_bounds
+
+DENSE = ForagingConfig(duration=120, max_wheel_velocity=20.0, n_boxes=12, size=14.0)
+"""A small crowded arena with fast robots: random controllers pick, drop and score within 120 steps."""
+
+
+def _fitness(policy, workers):
+    return evaluate(policy, DENSE, [TASKS["red"], TASKS["green"]], 4, torch.Generator().manual_seed(5),
+                    workers=workers)
+
+
+def test_eval_threads_play_each_shard_as_its_own_population():
+    sizes = layer_sizes_for(DENSE.obs_dim)
+    policy = MLPPolicy(torch.randn(5, n_parameters(sizes), generator=torch.Generator().manual_seed(3)) * 3, sizes)
+    alone = _fitness(policy, 1)
+    assert alone.shape == (2, 5)
+    assert len(set(alone.flatten().tolist())) >= 4, "controllers must score differently for the test to bite"
+    for workers in (2, 3, 8):  # even and uneven shards, and more threads than controllers
+        together = _fitness(policy, workers)
+        shards = [_fitness(policy.shard(start, stop), 1) for start, stop in shard_bounds(5, workers)]
+        assert torch.equal(together, torch.cat(shards, dim=1)), workers
+        assert torch.equal(_fitness(policy, workers), together), "same threads, same numbers"
+
+
+@pytest.mark.parametrize("population, workers", [(10, 1), (10, 2), (301, 2), (5, 3), (3, 8)])
+def test_shard_bounds_cover_the_population_evenly(population, workers):
+    bounds = shard_bounds(population, workers)
+    assert len(bounds) == min(population, workers)
+    assert bounds[0][0] == 0 and bounds[-1][1] == population
+    assert all(stop == start for (_, stop), (start, _) in zip(bounds, bounds[1:]))
+    sizes = {stop - start for start, stop in bounds}
+    assert max(sizes) - min(sizes) <= 1 and min(sizes) >= 1
+
+
+def test_a_policy_without_shard_needs_one_thread():
+    class Still:
+        population_size = 2
+
+        def __call__(self, observations):
+            return torch.full((*observations.shape[:-1], 3), 0.5)
+
+    assert torch.equal(_fitness(Still(), 1), torch.zeros(2, 2))
+    with pytest.raises(ValueError, match="has no shard"):
+        _fitness(Still(), 2)
