@@ -1,4 +1,5 @@
-"""Scoring a whole population on several tasks in one batched environment call."""
+"""Scoring a whole population on several tasks in one batched environment call (or one per
+evaluation thread, each over a slice of the population)."""
 from __future__ import annotations
 
 import functools
@@ -8,7 +9,7 @@ from typing import Sequence
 import torch
 
 from algorithms.base import BatchedPolicy
-from envs import ForagingConfig, ForagingEnv, ForagingState, Task, outputs_to_wheels
+from envs import ConfigError, ForagingConfig, ForagingEnv, ForagingState, Task, outputs_to_wheels
 
 
 @functools.lru_cache(maxsize=16)
@@ -33,7 +34,7 @@ def shard_bounds(population: int, workers: int) -> list[tuple[int, int]]:
     """Contiguous ``(start, stop)`` slices of the population, one per worker, sizes differing
     by at most one (so at most two batch shapes to compile)."""
     if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
+        raise ConfigError(f"evaluation threads must be >= 1, got {workers}")
     edges = [population * i // min(workers, population) for i in range(min(workers, population) + 1)]
     return list(zip(edges[:-1], edges[1:]))
 
@@ -46,15 +47,16 @@ def run_episodes(policy: BatchedPolicy, config: ForagingConfig, episodes: Foragi
 
     With ``workers > 1`` the population is split into that many shards (``policy.shard``), each
     played in its own thread by its own environment. The compiled step releases the GIL, so the
-    shards run in parallel; every environment is computed independently, so the numbers do not
-    depend on ``workers``.
+    shards run in parallel. Each shard scores exactly as it would alone, so a given ``workers``
+    always gives the same numbers; another count can round the last bit of a float differently
+    (vectorised maths handles the tail of each tensor apart).
     """
     bounds = shard_bounds(policy.population_size, workers)
     if len(bounds) == 1:
         return _play(policy, config, episodes, device, dtype, compiled, worker=0)
     if not callable(getattr(policy, "shard", None)):
-        raise ValueError(f"{type(policy).__name__} has no shard(start, stop), which workers > 1 needs: "
-                         "implement it or use one worker")
+        raise ConfigError(f"{type(policy).__name__} has no shard(start, stop), which several evaluation "
+                          "threads need: implement it or use --eval-threads 1")
     shards = [policy.shard(start, stop) for start, stop in bounds]
     with ThreadPoolExecutor(len(shards), thread_name_prefix="evaluate") as pool:
         totals = pool.map(lambda worker: _play(shards[worker], config, episodes, device, dtype, compiled, worker),

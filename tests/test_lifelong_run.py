@@ -117,6 +117,7 @@ def test_compiled_run_gives_the_same_numbers(smoke_runs, tmp_path):
     (["--schedule", "red,pink"], "unknown task 'pink'"),
     (["--schedule", "red:x"], "bad generation count"),
     (["--generations", "0"], "--generations must be >= 1"),
+    (["--eval-threads", "0"], "--eval-threads must be >= 1"),
     (["--env", "n_agent=3"], "unknown environment option"),
     (["--env", "colors=[3,5]"], "colors must be the contiguous ids"),
     (["--reg", "-1"], "--reg must be >= 0"),
