@@ -102,7 +102,7 @@ def bench_algo(algo: str, population: int, n_envs: int, generations: int, device
     for generation in range(generations + 1):
         policy, t_ask = _timed(optimizer.ask)
         fitness, t_eval = _timed(lambda: evaluate(policy, config, [TASKS["red"]], n_envs, generator, device,
-                                                  compiled=compiled, workers=eval_threads)[0])
+                                                  compiled=compiled, eval_threads=eval_threads)[0])
         _, t_tell = _timed(lambda: optimizer.tell(fitness, optimizer.regularise(fitness)))
         if generation:  # the first generation warms up
             totals["ask"] += t_ask

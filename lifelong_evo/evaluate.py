@@ -14,9 +14,9 @@ from envs import ConfigError, ForagingConfig, ForagingEnv, ForagingState, Task, 
 
 @functools.lru_cache(maxsize=16)
 def _env(config: ForagingConfig, batch_size: int, device: str, dtype: torch.dtype, compiled: bool,
-         worker: int) -> ForagingEnv:
-    """One environment object per batch shape and worker (each worker steps its own), so that a
-    compiled step is compiled once per shape."""
+         thread: int) -> ForagingEnv:
+    """One environment object per batch shape and evaluation thread (each steps its own), so
+    that a compiled step is compiled once per shape."""
     env = ForagingEnv(config, batch_size=batch_size, device=device, dtype=dtype)
     if compiled:
         env.compile()
@@ -30,48 +30,49 @@ def sample_episodes(config: ForagingConfig, tasks: Sequence[Task], n_envs: int, 
     return ForagingState.cat([sampler.sample_state(task, generator) for task in tasks])
 
 
-def shard_bounds(population: int, workers: int) -> list[tuple[int, int]]:
-    """Contiguous ``(start, stop)`` slices of the population, one per worker, sizes differing
-    by at most one (so at most two batch shapes to compile)."""
-    if workers < 1:
-        raise ConfigError(f"evaluation threads must be >= 1, got {workers}")
-    edges = [population * i // min(workers, population) for i in range(min(workers, population) + 1)]
+def shard_bounds(population: int, eval_threads: int) -> list[tuple[int, int]]:
+    """Contiguous ``(start, stop)`` slices of the population, one per thread (at most one per
+    controller), sizes differing by at most one (so at most two batch shapes to compile)."""
+    if eval_threads < 1:
+        raise ConfigError(f"evaluation threads must be >= 1, got {eval_threads}")
+    n = min(eval_threads, population)
+    edges = [population * i // n for i in range(n + 1)]
     return list(zip(edges[:-1], edges[1:]))
 
 
 def run_episodes(policy: BatchedPolicy, config: ForagingConfig, episodes: ForagingState,
                  device: str | torch.device = "cpu", dtype: torch.dtype = torch.float32,
-                 compiled: bool = False, workers: int = 1) -> torch.Tensor:
+                 compiled: bool = False, eval_threads: int = 1) -> torch.Tensor:
     """Every controller of ``policy`` plays every episode of ``episodes`` (E initial states);
     returns the summed rewards ``(population, E)``.
 
-    With ``workers > 1`` the population is split into that many shards (``policy.shard``), each
+    With ``eval_threads > 1`` the population is split into that many shards (``policy.shard``), each
     played in its own thread by its own environment. The compiled step releases the GIL, so the
-    shards run in parallel. Each shard scores exactly as it would alone, so a given ``workers``
+    shards run in parallel. Each shard scores exactly as it would alone, so a given ``eval_threads``
     always gives the same numbers; another count can round the last bit of a float differently
     (vectorised maths handles the tail of each tensor apart).
     """
-    bounds = shard_bounds(policy.population_size, workers)
+    bounds = shard_bounds(policy.population_size, eval_threads)
     if len(bounds) == 1:
-        return _play(policy, config, episodes, device, dtype, compiled, worker=0)
+        return _play(policy, config, episodes, device, dtype, compiled, thread=0)
     if not callable(getattr(policy, "shard", None)):
         raise ConfigError(f"{type(policy).__name__} has no shard(start, stop), which several evaluation "
                           "threads need: implement it or use --eval-threads 1")
     shards = [policy.shard(start, stop) for start, stop in bounds]
     with ThreadPoolExecutor(len(shards), thread_name_prefix="evaluate") as pool:
-        totals = pool.map(lambda worker: _play(shards[worker], config, episodes, device, dtype, compiled, worker),
+        totals = pool.map(lambda thread: _play(shards[thread], config, episodes, device, dtype, compiled, thread),
                           range(len(shards)))
         return torch.cat(list(totals))
 
 
 def _play(policy: BatchedPolicy, config: ForagingConfig, episodes: ForagingState, device, dtype,
-          compiled: bool, worker: int) -> torch.Tensor:
-    """``run_episodes`` for one worker. The batch is population-major, ``(P * E)``
+          compiled: bool, thread: int) -> torch.Tensor:
+    """``run_episodes`` for one evaluation thread. The batch is population-major, ``(P * E)``
     environments, so the policy sees its observations as ``(P, E, agents, obs_dim)`` and each
     controller meets the same E episodes."""
     population = policy.population_size
     n_episodes = episodes.target.shape[0]
-    env = _env(config, population * n_episodes, str(device), dtype, compiled, worker)
+    env = _env(config, population * n_episodes, str(device), dtype, compiled, thread)
     tiled = episodes.index(torch.arange(n_episodes).repeat(population))
     observations = env.reset(state=tiled)
     totals = torch.zeros(population * n_episodes, dtype=dtype, device=device)
@@ -87,10 +88,10 @@ def _play(policy: BatchedPolicy, config: ForagingConfig, episodes: ForagingState
 
 def evaluate(policy: BatchedPolicy, config: ForagingConfig, tasks: Sequence[Task], n_envs: int,
              generator: torch.Generator, device: str | torch.device = "cpu",
-             dtype: torch.dtype = torch.float32, compiled: bool = False, workers: int = 1) -> torch.Tensor:
+             dtype: torch.dtype = torch.float32, compiled: bool = False, eval_threads: int = 1) -> torch.Tensor:
     """Fitness ``(len(tasks), population)``: the mean episode reward of every controller over
     ``n_envs`` fresh environments per task, drawn from ``generator`` and shared by all controllers
-    (``workers``: see ``run_episodes``)."""
+    (``eval_threads``: see ``run_episodes``)."""
     episodes = sample_episodes(config, tasks, n_envs, generator, device, dtype)
-    totals = run_episodes(policy, config, episodes, device, dtype, compiled, workers)
+    totals = run_episodes(policy, config, episodes, device, dtype, compiled, eval_threads)
     return totals.view(policy.population_size, len(tasks), n_envs).mean(dim=-1).T

@@ -87,7 +87,7 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
                     others = []
                 policy = optimizer.ask()
                 fitness = evaluate(policy, env_config, [phase.task, *others], config.evals, generator, config.device,
-                                   compiled=config.compile, workers=config.eval_threads)
+                                   compiled=config.compile, eval_threads=config.eval_threads)
                 raw = fitness[0]
                 regularised = optimizer.regularise(raw)
                 scores = {task.name: retention(fitness[1 + i], raw, optimizer.centre_index)

@@ -10,9 +10,9 @@ DENSE = ForagingConfig(duration=120, max_wheel_velocity=20.0, n_boxes=12, size=1
 """A small crowded arena with fast robots: random controllers pick, drop and score within 120 steps."""
 
 
-def _fitness(policy, workers):
+def _fitness(policy, threads):
     return evaluate(policy, DENSE, [TASKS["red"], TASKS["green"]], 4, torch.Generator().manual_seed(5),
-                    workers=workers)
+                    eval_threads=threads)
 
 
 def test_eval_threads_play_each_shard_as_its_own_population():
@@ -21,17 +21,17 @@ def test_eval_threads_play_each_shard_as_its_own_population():
     alone = _fitness(policy, 1)
     assert alone.shape == (2, 5)
     assert len(set(alone.flatten().tolist())) >= 4, "controllers must score differently for the test to bite"
-    for workers in (2, 3, 8):  # even and uneven shards, and more threads than controllers
-        together = _fitness(policy, workers)
-        shards = [_fitness(policy.shard(start, stop), 1) for start, stop in shard_bounds(5, workers)]
-        assert torch.equal(together, torch.cat(shards, dim=1)), workers
-        assert torch.equal(_fitness(policy, workers), together), "same threads, same numbers"
+    for threads in (2, 3, 8):  # even and uneven shards, and more threads than controllers
+        together = _fitness(policy, threads)
+        shards = [_fitness(policy.shard(start, stop), 1) for start, stop in shard_bounds(5, threads)]
+        assert torch.equal(together, torch.cat(shards, dim=1)), threads
+        assert torch.equal(_fitness(policy, threads), together), "same threads, same numbers"
 
 
-@pytest.mark.parametrize("population, workers", [(10, 1), (10, 2), (301, 2), (5, 3), (3, 8)])
-def test_shard_bounds_cover_the_population_evenly(population, workers):
-    bounds = shard_bounds(population, workers)
-    assert len(bounds) == min(population, workers)
+@pytest.mark.parametrize("population, threads", [(10, 1), (10, 2), (301, 2), (5, 3), (3, 8)])
+def test_shard_bounds_cover_the_population_evenly(population, threads):
+    bounds = shard_bounds(population, threads)
+    assert len(bounds) == min(population, threads)
     assert bounds[0][0] == 0 and bounds[-1][1] == population
     assert all(stop == start for (_, stop), (start, _) in zip(bounds, bounds[1:]))
     sizes = {stop - start for start, stop in bounds}
