@@ -354,7 +354,7 @@ class ForagingEnv:
     def compile(self) -> None:
         """Compile the step with ``torch.compile``, as the two fused graphs around the rare
         pick conflicts: moving and reaching, then settling and sensing (static shapes: each
-        batch size compiles once, in 15-60 s). Observations outside ``step`` stay eager.
+        batch size compiles once, in 20-60 s). Observations outside ``step`` stay eager.
 
         The graphs run under inductor's C++ wrapper, which releases the GIL: several Python
         threads, each stepping its own environment, then run in parallel (see

@@ -57,7 +57,7 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-record", dest="record", action="store_const", const=False, default=None,
                         help="do not write recording.rrd")
     parser.add_argument("--compile", dest="compile", action="store_const", const=True, default=None,
-                        help="torch.compile the environment's step (about 2.5x faster steps; 15-60 s to compile per batch shape)")
+                        help="torch.compile the environment's step (about 2.5x faster steps; 20-60 s to compile per batch shape)")
     parser.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
                         help="environment option, e.g. --env see_other_agents=true (repeatable)")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",

@@ -41,7 +41,7 @@ class RunConfig:
     """Evaluation threads, each playing its own slice of the population (with --compile on 2
     cores, --eval-threads 2 --threads 1 is the fastest); a seed and a count fix the numbers."""
     compile: bool = False
-    """torch.compile the environment's step (faster steps after 15-60 s of compiling per batch shape)."""
+    """torch.compile the environment's step (faster steps after 20-60 s of compiling per batch shape)."""
     record: bool = True
     """Write recording.rrd (Rerun)."""
     episodes_every: int = 0
