@@ -102,9 +102,16 @@ def respawn_cells(key: torch.Tensor, steps: torch.Tensor, n_agents: int, size: i
     base = hash31(hash31((key & _HASH_MASK).to(torch.int32)) ^ steps.to(torch.int32))[None, :] ^ (agents * 2)
     hx, hy = hash31(base), hash31(base ^ 1)
     high = size - 1
-    x = BOX_LOW[0] + hx % (high - BOX_LOW[0])
-    y = BOX_LOW[1] + hy % (high - BOX_LOW[1])
+    x = BOX_LOW[0] + _remainder(hx, high - BOX_LOW[0])
+    y = BOX_LOW[1] + _remainder(hy, high - BOX_LOW[1])
     return torch.stack((x, y), dim=-1)
+
+
+def _remainder(h: torch.Tensor, n: int) -> torch.Tensor:
+    """``h % n`` for int32 ``h >= 0`` and ``0 < n < 2**22``, by float64 division: exact here
+    (the quotient's fraction, at least ``1 / n`` from the next integer, outlasts the rounding),
+    and compiled CPU code vectorises it, while integer ``%`` runs element by element."""
+    return h - (torch.floor(h.to(torch.float64) / n) * n).to(torch.int32)
 
 
 @dataclass
@@ -405,12 +412,11 @@ class ForagingEnv:
         per environment ``terminated`` (max retrievals reached) and ``truncated`` (duration reached).
         """
         a = self._arena
-        ax, ay, heading, nearest, wants, rank = self._move_and_reach(
+        ax, ay, heading, picked, nearest, wants, rank, top_rank = self._move_and_reach(
             wheels, a.ax, a.ay, a.heading, a.carrying, a.bx, a.by, a.present, a.done)
-        if bool(rank.any()):  # two agents reach one cell: rare, so resolved apart from the fused path
-            picked = self._resolve_conflicts(nearest, wants, rank, a.bx, a.by, a.present)
-        else:
-            picked = (nearest + 1) * wants - 1
+        top_rank = int(top_rank)
+        if top_rank > 0:  # two agents reach one cell: rare, so resolved apart from the fused path
+            picked = self._resolve_conflicts(nearest, wants, rank, top_rank, a.bx, a.by, a.present)
         observations, reward, arena, info = self._settle_and_sense(
             ax, ay, heading, picked, a.carrying, a.bx, a.by, a.color, a.present, a.target,
             a.steps, a.retrieved, a.done, a.respawn_key)
@@ -418,9 +424,10 @@ class ForagingEnv:
         return _batch_first(observations), reward, arena["done"], info
 
     def _move_and_reach(self, wheels, ax, ay, heading, carrying, bx, by, present, done):
-        """Steps 1 and 2 of the spec: the moved agents, and each agent's nearest box and whether
-        it reaches it. ``rank`` (A, B) > 0 marks agents that share their reachable cell with an
-        earlier agent (see ``_resolve_conflicts``); ``nearest`` is a valid box index throughout."""
+        """Steps 1 and 2 of the spec: the moved agents, and the box each agent picks, -1 for none,
+        right unless two agents reach one cell. ``rank`` (A, B) > 0 marks agents that share their
+        reachable cell with an earlier agent, ``top_rank`` is its largest value (then see
+        ``_resolve_conflicts``); ``nearest`` is a valid box index throughout."""
         c = self.config
         active = ~done
         # kinematics in the arena frame; an ended environment stays frozen
@@ -441,9 +448,10 @@ class ForagingEnv:
         wanted_cell = ((cx * self._cells_per_row + cy).to(torch.int32) + 1) * wants - 1  # -1: wants none
         same_cell = (wanted_cell[:, None] == wanted_cell[None]).to(torch.int32)            # (A, A, B)
         rank = (same_cell * self._earlier_agents).sum(1, dtype=torch.int32) * wants
-        return ax, ay, heading, nearest, wants, rank
+        picked = (nearest + 1) * wants - 1
+        return ax, ay, heading, picked, nearest, wants, rank, rank.amax()
 
-    def _resolve_conflicts(self, nearest, wants, rank, bx, by, present) -> torch.Tensor:
+    def _resolve_conflicts(self, nearest, wants, rank, top_rank, bx, by, present) -> torch.Tensor:
         """Box index each agent picks, -1 for none, ``(A, B)``, when agents share a cell.
 
         Sequential semantics (agents in index order, each taking its nearest present box) without
@@ -457,7 +465,7 @@ class ForagingEnv:
         order = cell * K + self._box_ids                                                   # (K, B)
         nearest_order = order.gather(0, nearest)
         chosen = successor = nearest_order
-        for r in range(1, int(rank.max()) + 1):  # the r-th successor, for the agents of rank r
+        for r in range(1, top_rank + 1):  # the r-th successor, for the agents of rank r
             successor = _OrderKeys.next_min(order[:, None], successor)
             chosen = chosen + (rank == r) * (successor - chosen)
         got = wants * (chosen // K == nearest_order // K)  # still in the same cell

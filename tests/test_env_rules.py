@@ -14,7 +14,7 @@ import torch
 from torch._dynamo.utils import counters
 
 from envs import TASKS, ForagingConfig, ForagingEnv, Task, outputs_to_wheels
-from envs.foraging import hash31, respawn_cells
+from envs.foraging import _remainder, hash31, respawn_cells
 
 try:
     from oracle import A, OracleState, batched_state_from, hash31 as py_hash31, respawn_cell
@@ -635,6 +635,18 @@ def test_outputs_to_wheels():
     config = ForagingConfig()
     out = torch.tensor([0.0, 0.5, 1.0, 0.25], dtype=F64)
     assert outputs_to_wheels(out, config).tolist() == [-2.0, 0.0, 2.0, -1.0]
+
+
+def test_float_remainder_equals_integer_remainder():
+    """The respawn cells take ``h % n`` through float64 division (it vectorises): exact for every
+    31-bit ``h``, including multiples of ``n`` and their neighbours, where rounding would show."""
+    rng = random.Random(1)
+    for n in (*range(1, 40), 1000, 2 ** 21 + 1):
+        top = (2 ** 31 - 1) // n * n
+        hs = [0, 1, n - 1, n, n + 1, top - 1, top, 2 ** 31 - 1] + [rng.randrange(2 ** 31) for _ in range(300)]
+        hs += [rng.randrange(2 ** 31 // n) * n + d for _ in range(100) for d in (-1, 0) if n > 1]
+        h = torch.tensor([x for x in hs if 0 <= x < 2 ** 31], dtype=torch.int32)
+        assert _remainder(h, n).tolist() == [x % n for x in h.tolist()], n
 
 
 def test_respawn_stream_matches_a_plain_python_hash():
