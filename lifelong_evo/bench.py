@@ -17,6 +17,7 @@ import torch
 
 from algorithms.base import BatchedPolicy
 from envs import TASKS, ForagingConfig, ForagingEnv, outputs_to_wheels
+from lifelong_evo.bench_reference import ReferenceStep
 from lifelong_evo.evaluate import evaluate, shard_bounds
 
 
@@ -31,9 +32,10 @@ def _timed(fn):
 
 
 def bench_env(n_envs: int, steps: int, config: ForagingConfig, device: str, compile_env: bool,
-              eval_threads: int = 1) -> dict:
+              eval_threads: int = 1, reference: bool = False) -> dict:
     """Time ``steps`` steps of ``n_envs`` environments driven by one random MLP per 10 envs,
-    split over ``eval_threads`` threads as the evaluator splits a population."""
+    split over ``eval_threads`` threads as the evaluator splits a population; ``reference``:
+    of ``ReferenceStep`` instead (see ``lifelong_evo.bench_reference``)."""
     from algorithms.mlp import MLPPolicy, layer_sizes_for, n_parameters
 
     generator = torch.Generator().manual_seed(0)
@@ -42,7 +44,7 @@ def bench_env(n_envs: int, steps: int, config: ForagingConfig, device: str, comp
     policy = MLPPolicy(torch.randn(population, n_parameters(sizes), generator=generator).to(device), sizes)
     shards = []
     for start, stop in shard_bounds(population, eval_threads):
-        env = ForagingEnv(config, batch_size=(stop - start) * 10, device=device)
+        env = (ReferenceStep if reference else ForagingEnv)(config, batch_size=(stop - start) * 10, device=device)
         if compile_env:
             env.compile()
         shards.append(_Shard(env, policy.shard(start, stop), env.reset(TASKS["red"], generator=generator)))
@@ -66,7 +68,7 @@ def bench_env(n_envs: int, steps: int, config: ForagingConfig, device: str, comp
 class _Shard:
     """One thread's environments and controllers, and the seconds it spent in each."""
 
-    env: ForagingEnv
+    env: ForagingEnv | ReferenceStep
     policy: BatchedPolicy
     observations: torch.Tensor
     controller: float = 0.0
@@ -129,10 +131,13 @@ def main(argv=None) -> None:
                         help="threads that each play a slice of the controllers (use with --compile --threads 1)")
     parser.add_argument("--compile", action="store_true", help="torch.compile the environment's step (compiled during the untimed warm-up)")
     parser.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
+    parser.add_argument("--reference", action="store_true",
+                        help="time the plain step the speed goals were set with, not this env (env only; "
+                             "compares a machine with theirs, see lifelong_evo/bench_reference.py)")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     print(f"threads={torch.get_num_threads()} eval_threads={args.eval_threads} device={args.device} "
-          f"compile={'on' if args.compile else 'off'}")
+          f"compile={'on' if args.compile else 'off'}" + (" step=reference" if args.reference else ""))
     if args.algo:
         result = bench_algo(args.algo, args.population, args.evals, args.generations, args.device, args.compile,
                              args.eval_threads)
@@ -145,7 +150,7 @@ def main(argv=None) -> None:
     sizes = [int(s) for s in args.also.split(",") if s] + [args.envs]
     result = {}
     for n_envs in sizes:
-        result = bench_env(n_envs, args.steps, config, args.device, args.compile, args.eval_threads)
+        result = bench_env(n_envs, args.steps, config, args.device, args.compile, args.eval_threads, args.reference)
         print(f"envs={result['envs']:>6} x 500 steps: {result['s_per_generation']:.3f} s/generation, "
               f"{result['agent_steps_per_s'] / 1e6:.2f} M agent-steps/s; split: {_split(result)}")
     print(f"s_per_generation={result['s_per_generation']:.3f}")

@@ -2,16 +2,49 @@
 import re
 
 import pytest
+import torch
 
+from envs import TASKS, ForagingConfig, ForagingEnv, ForagingState
 from lifelong_evo.bench import main
+from lifelong_evo.bench_reference import ReferenceStep
 
 
 @pytest.mark.parametrize("argv", [
     ["--envs", "40", "--also", "20", "--steps", "3", "--eval-threads", "2"],
     ["--algo", "openai-es", "--population", "4", "--evals", "1", "--generations", "1", "--eval-threads", "2"],
+    ["--reference", "--envs", "20", "--also", "", "--steps", "2"],
 ])
 def test_last_line_is_seconds_per_generation(argv, capsys):
     main(argv)
     lines = capsys.readouterr().out.strip().splitlines()
-    assert "eval_threads=2" in lines[0]
+    assert f"eval_threads={2 if '--eval-threads' in argv else 1}" in lines[0]
     assert re.fullmatch(r"s_per_generation=\d+\.\d{3}", lines[-1]) and float(lines[-1].split("=")[1]) > 0
+
+
+def test_reference_step_senses_what_the_env_senses():
+    """``--reference`` times a plain formulation of the same work: on the same arena (no ties)
+    its observations are the env's, and its steps keep the one-hots well formed."""
+    config = ForagingConfig()
+    reference = ReferenceStep(config, batch_size=64)
+    reference.reset(TASKS["red"], torch.Generator().manual_seed(3))
+    generator = torch.Generator().manual_seed(4)
+    for _ in range(30):  # move the agents away from their start, picking and dropping on the way
+        observations = reference.step(torch.rand(64, config.n_agents, 3, generator=generator) * 40 - 20)[0]
+    n = config.n_neighbors
+    assert observations.shape == (64, config.n_agents, config.obs_dim) and observations.isfinite().all()
+    slots = observations[..., :n * config.n_types].reshape(64, config.n_agents, n, config.n_types)
+    assert (slots.sum(-1) == 1).all() and (observations[..., -(2 * config.n_colors + 1):].sum(-1) == 2).all()
+    state = ForagingState(
+        agent_pos=torch.stack((reference.ax.T, reference.ay.T), -1), heading=reference.heading.T,
+        carrying=reference.carrying.T, box_pos=torch.stack((reference.bx.T, reference.by.T), -1),
+        box_color=reference.color.T, box_present=reference.present.T, target=reference.target,
+        season=torch.tensor([[True, True, False, False]]).repeat(64, 1),
+        steps=torch.zeros(64, dtype=torch.long), retrieved=torch.zeros(64, dtype=torch.long),
+        done=torch.zeros(64, dtype=torch.bool), respawn_key=torch.zeros(64, dtype=torch.long))
+    # boxes respawned onto one cell tie: the spec senses them in index order, topk in any order
+    cell = reference.bx * 100 + reference.by + 10_000 * ~reference.present                   # (K, B)
+    shared = ((cell[:, None] == cell[None]).sum(1) > 1).any(0) & reference.present.any(0)
+    untied = ~shared
+    assert untied.sum() >= 16
+    torch.testing.assert_close(ForagingEnv(config, batch_size=64).reset(state=state)[untied],
+                               reference.observe()[untied])
