@@ -135,6 +135,8 @@ def main(argv=None) -> None:
                         help="time the plain step the speed goals were set with, not this env (env only; "
                              "compares a machine with theirs, see lifelong_evo/bench_reference.py)")
     args = parser.parse_args(argv)
+    if args.reference and args.algo:
+        parser.error("--reference times the environment step alone: drop --algo or --reference")
     torch.set_num_threads(args.threads)
     print(f"threads={torch.get_num_threads()} eval_threads={args.eval_threads} device={args.device} "
           f"compile={'on' if args.compile else 'off'}" + (" step=reference" if args.reference else ""))

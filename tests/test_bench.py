@@ -48,3 +48,9 @@ def test_reference_step_senses_what_the_env_senses():
     assert untied.sum() >= 16
     torch.testing.assert_close(ForagingEnv(config, batch_size=64).reset(state=state)[untied],
                                reference.observe()[untied])
+
+
+def test_reference_with_an_algorithm_is_refused(capsys):
+    with pytest.raises(SystemExit):
+        main(["--reference", "--algo", "neat"])
+    assert "drop --algo or --reference" in capsys.readouterr().err
