@@ -18,7 +18,7 @@ import torch
 from algorithms.base import BatchedPolicy
 from envs import TASKS, ForagingConfig, ForagingEnv, outputs_to_wheels
 from lifelong_evo.bench_reference import ReferenceStep
-from lifelong_evo.evaluate import evaluate, shard_bounds
+from lifelong_evo.evaluate import evaluate, shard_bounds, update_threads
 
 
 WARM_UP_STEPS = 3
@@ -101,11 +101,14 @@ def bench_algo(algo: str, population: int, n_envs: int, generations: int, device
     optimizer = make_optimizer(algo, obs_dim=config.obs_dim, population_size=population, seed=0, device=device)
     generator = torch.Generator().manual_seed(0)
     totals = {"ask": 0.0, "evaluate": 0.0, "tell": 0.0}
+    threads = torch.get_num_threads()
     for generation in range(generations + 1):
-        policy, t_ask = _timed(optimizer.ask)
+        with update_threads(threads, eval_threads):  # as the lifelong loop does
+            policy, t_ask = _timed(optimizer.ask)
         fitness, t_eval = _timed(lambda: evaluate(policy, config, [TASKS["red"]], n_envs, generator, device,
                                                   compiled=compiled, eval_threads=eval_threads)[0])
-        _, t_tell = _timed(lambda: optimizer.tell(fitness, optimizer.regularise(fitness)))
+        with update_threads(threads, eval_threads):
+            _, t_tell = _timed(lambda: optimizer.tell(fitness, optimizer.regularise(fitness)))
         if generation:  # the first generation warms up
             totals["ask"] += t_ask
             totals["evaluate"] += t_eval

@@ -39,7 +39,8 @@ class RunConfig:
     """Torch CPU threads (one is often faster for these small tensors, and keeps runs reproducible)."""
     eval_threads: int = 1
     """Evaluation threads, each playing its own slice of the population (with --compile on 2
-    cores, --eval-threads 2 --threads 1 is the fastest); a seed and a count fix the numbers."""
+    cores, --eval-threads 2 --threads 1 is the fastest; ask and tell get threads x eval_threads
+    torch threads); a seed and a count fix the numbers."""
     compile: bool = False
     """torch.compile the environment's step (faster steps after 20-60 s of compiling per batch shape)."""
     record: bool = True

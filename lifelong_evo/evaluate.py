@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import functools
 from concurrent.futures import ThreadPoolExecutor
-from typing import Sequence
+from contextlib import contextmanager
+from typing import Iterator, Sequence
 
 import torch
 
@@ -28,6 +29,18 @@ def sample_episodes(config: ForagingConfig, tasks: Sequence[Task], n_envs: int, 
     """``n_envs`` fresh initial states per task, task-major: ``(len(tasks) * n_envs)`` environments."""
     sampler = ForagingEnv(config, batch_size=n_envs, device=device, dtype=dtype)
     return ForagingState.cat([sampler.sample_state(task, generator) for task in tasks])
+
+
+@contextmanager
+def update_threads(threads: int, eval_threads: int) -> Iterator[None]:
+    """Run the block (an optimiser's ``ask`` and ``tell``) with ``threads * eval_threads`` torch
+    threads, then go back to ``threads``. Between evaluations the evaluation threads are idle,
+    so their cores can share the update's linear algebra (full CMA-ES's eigendecomposition)."""
+    torch.set_num_threads(threads * eval_threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
 
 
 def shard_bounds(population: int, eval_threads: int) -> list[tuple[int, int]]:

@@ -15,7 +15,7 @@ from algorithms import make_optimizer, policy_from_export
 from . import checkpoint
 from .config import RunConfig
 from .episodes import play_episodes
-from .evaluate import evaluate
+from .evaluate import evaluate, update_threads
 from .metrics import fitness_stats, retention, summarise
 from .progress import Progress
 from .recording import NullRecorder, Recorder
@@ -85,7 +85,8 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
                     others = earlier
                 else:
                     others = []
-                policy = optimizer.ask()
+                with update_threads(config.threads, config.eval_threads):
+                    policy = optimizer.ask()
                 fitness = evaluate(policy, env_config, [phase.task, *others], config.evals, generator, config.device,
                                    compiled=config.compile, eval_threads=config.eval_threads)
                 raw = fitness[0]
@@ -96,7 +97,8 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
                 top = int(raw.argmax())
                 periodic = bool(config.episodes_every) and generation % config.episodes_every == 0
                 exported = optimizer.export(top) if last or periodic else None
-                report = optimizer.tell(raw, regularised)
+                with update_threads(config.threads, config.eval_threads):
+                    report = optimizer.tell(raw, regularised)
                 row = {"task": phase.name, "task_index": phase_index, "generation": generation,
                        "generation_in_task": in_task, **fitness_stats(raw), **fitness_stats(regularised, "reg_")}
                 if report.species_sizes is not None:

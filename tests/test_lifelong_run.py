@@ -208,3 +208,38 @@ def test_reg_for_an_algorithm_without_regulariser(monkeypatch, tmp_path, capsys)
     err = capsys.readouterr().err
     assert err.startswith("error: algorithm 'no-reg' has no regulariser") and err.count("\n") == 1
     assert not any(tmp_path.iterdir())
+
+
+def test_the_update_gets_the_cores_of_the_evaluation_threads(monkeypatch, tmp_path):
+    """Between evaluations the evaluation threads are idle: ``ask`` and ``tell`` run with
+    threads x eval_threads torch threads, every evaluation thread with ``--threads``."""
+    import torch
+
+    from algorithms import REGISTRY
+    from lifelong_evo import evaluate
+
+    seen = {"ask": set(), "tell": set(), "evaluate": set()}
+
+    class Recording(REGISTRY["openai-es"]):
+        name = "recording-es"
+
+        def ask(self):
+            seen["ask"].add(torch.get_num_threads())
+            return super().ask()
+
+        def tell(self, fitness, selection_fitness):
+            seen["tell"].add(torch.get_num_threads())
+            return super().tell(fitness, selection_fitness)
+
+    play = evaluate._play
+
+    def recording_play(*args, **kwargs):
+        seen["evaluate"].add(torch.get_num_threads())
+        return play(*args, **kwargs)
+
+    monkeypatch.setitem(REGISTRY, "recording-es", Recording)
+    monkeypatch.setattr(evaluate, "_play", recording_play)
+    assert main(["--algo", "recording-es", "--preset", "smoke", "--threads", "1", "--eval-threads", "2",
+                 "--out", str(tmp_path), "--no-record", "--quiet"]) == 0
+    assert seen == {"ask": {2}, "tell": {2}, "evaluate": {1}}
+    assert torch.get_num_threads() == 1
