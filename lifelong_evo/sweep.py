@@ -52,6 +52,7 @@ from typing import Any
 from .checkpoint import atomic_write_bytes
 from .cli import CliError, add_run_options, default_name, parse_assignments, resolve_run_config
 from .config import PRESETS, RunConfig, load_toml
+from .plots import IGNORED_CONFIG_KEYS
 from .rundir import RunDirError, read_json, write_json
 
 RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in ("env", "algo_options")]
@@ -408,10 +409,9 @@ def selection_score(summary: dict[str, Any]) -> float | None:
     return float(current[1]) + float(retained)
 
 
-_SAME_CONFIGURATION_IGNORES = ("seed", "reg", "versions", "name", "record", "threads", "eval_threads", "device",
-                               "checkpoint_every", "episodes_every")
-"""Keys left out when grouping runs for the m.s. lambda: the seed, lambda, and what does not change
-results (as ``plots.IGNORED_CONFIG_KEYS``, by which ``compare`` groups)."""
+_SAME_CONFIGURATION_IGNORES = ("reg", *IGNORED_CONFIG_KEYS)
+"""Keys left out when grouping runs for the m.s. lambda: lambda, and what ``compare`` leaves out
+(the seed and what does not change results)."""
 
 
 def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]) -> list[dict[str, Any]]:
