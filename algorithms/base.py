@@ -36,7 +36,7 @@ class BatchedPolicy(Protocol):
     def shard(self, start: int, stop: int) -> "BatchedPolicy":
         """Controllers ``start .. stop - 1`` as a policy of their own, giving the outputs they
         give in the whole population, up to float rounding (the evaluator's threads each play
-        one shard)."""
+        one shard). Optional: a policy without it is played in one thread."""
 
 
 @dataclass

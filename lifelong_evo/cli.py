@@ -36,7 +36,7 @@ _FIELD_DOCS = {
     "checkpoint_every": "checkpoint every this many generations",
     "device": "torch device (cpu, cuda, ...)",
     "threads": "torch CPU threads",
-    "eval_threads": "evaluation threads, each playing a slice of the population (use with --compile --threads 1)",
+    "eval_threads": "evaluation threads, each playing a slice of the population with its own env (the smoke preset: 1)",
     "episodes_every": "also record episodes every this many generations (0: task ends only)",
 }
 
@@ -57,7 +57,10 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-record", dest="record", action="store_const", const=False, default=None,
                         help="do not write recording.rrd")
     parser.add_argument("--compile", dest="compile", action="store_const", const=True, default=None,
-                        help="torch.compile the environment's step (about 2.5x faster steps; 20-60 s to compile per batch shape)")
+                        help="torch.compile the environment's step: about 2.5x faster steps, 20-60 s to compile "
+                             "per batch shape, needs a C++ compiler (default: on; the smoke preset: off)")
+    parser.add_argument("--no-compile", dest="compile", action="store_const", const=False,
+                        help="run the environment's step eagerly")
     parser.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
                         help="environment option, e.g. --env see_other_agents=true (repeatable)")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",

@@ -63,14 +63,12 @@ def run_episodes(policy: BatchedPolicy, config: ForagingConfig, episodes: Foragi
     played in its own thread by its own environment. The compiled step releases the GIL, so the
     shards run in parallel. Each shard scores exactly as it would alone, so a given ``eval_threads``
     always gives the same numbers; another count can round the last bit of a float differently
-    (vectorised maths handles the tail of each tensor apart).
+    (vectorised maths handles the tail of each tensor apart). A policy without ``shard`` is played
+    in one thread whatever ``eval_threads`` says.
     """
     bounds = shard_bounds(policy.population_size, eval_threads)
-    if len(bounds) == 1:
+    if len(bounds) == 1 or not callable(getattr(policy, "shard", None)):
         return _play(policy, config, episodes, device, dtype, compiled, thread=0)
-    if not callable(getattr(policy, "shard", None)):
-        raise ConfigError(f"{type(policy).__name__} has no shard(start, stop), which several evaluation "
-                          "threads need: implement it or use --eval-threads 1")
     shards = [policy.shard(start, stop) for start, stop in bounds]
     with ThreadPoolExecutor(len(shards), thread_name_prefix="evaluate") as pool:
         totals = pool.map(lambda thread: _play(shards[thread], config, episodes, device, dtype, compiled, thread),

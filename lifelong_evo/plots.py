@@ -111,8 +111,8 @@ def _float(text: str) -> float:
         return float("nan")
 
 
-IGNORED_CONFIG_KEYS = ("seed", "versions", "name", "record", "threads", "eval_threads", "device", "checkpoint_every",
-                       "episodes_every")
+IGNORED_CONFIG_KEYS = ("seed", "versions", "name", "record", "threads", "eval_threads", "compile", "device",
+                       "checkpoint_every", "episodes_every")
 """config.json keys that do not make two runs different configurations (the seed, and what does
 not change the results)."""
 

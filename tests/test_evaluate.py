@@ -38,13 +38,16 @@ def test_shard_bounds_cover_the_population_evenly(population, threads):
     assert max(sizes) - min(sizes) <= 1 and min(sizes) >= 1
 
 
-def test_a_policy_without_shard_needs_one_thread():
-    class Still:
-        population_size = 2
+def test_a_policy_without_shard_is_played_in_one_thread():
+    sizes = layer_sizes_for(DENSE.obs_dim)
+    mlp = MLPPolicy(torch.randn(4, n_parameters(sizes), generator=torch.Generator().manual_seed(3)) * 3, sizes)
+
+    class Unsharded:
+        population_size = mlp.population_size
 
         def __call__(self, observations):
-            return torch.full((*observations.shape[:-1], 3), 0.5)
+            return mlp(observations)
 
-    assert torch.equal(_fitness(Still(), 1), torch.zeros(2, 2))
-    with pytest.raises(ValueError, match="has no shard"):
-        _fitness(Still(), 2)
+    alone = _fitness(Unsharded(), 1)
+    assert alone.abs().sum() > 0, "the controllers must score for the test to bite"
+    assert torch.equal(_fitness(Unsharded(), 2), alone)

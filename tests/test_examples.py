@@ -15,7 +15,7 @@ from lifelong_evo.config import load_toml, resolve
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 TINY = ["--generations", "2", "--population", "8", "--evals", "1", "--retention-every", "1", "--env", "duration=30",
-        "--no-record", "--quiet"]
+        "--no-compile", "--no-record", "--quiet"]
 
 
 @pytest.mark.parametrize("name", sorted(p.name for p in EXAMPLES.glob("*.toml") if p.name != "sweep.toml"))

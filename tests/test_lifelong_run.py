@@ -130,6 +130,23 @@ def test_bad_input_is_one_clear_line(argv, message, tmp_path, capsys):
     assert not any(tmp_path.iterdir()), "nothing is written for bad input"
 
 
+def test_the_paper_preset_compiles_and_asks_for_a_compiler_up_front(tmp_path, capsys):
+    from torch._inductor import config as inductor_config
+
+    tiny = ["--generations", "1", "--population", "8", "--evals", "1", "--env", "duration=20"]
+    with inductor_config.patch({"cpp.cxx": ("no-such-c++-compiler",)}):
+        assert main(["--algo", "neat", "--out", str(tmp_path), "--quiet", "--no-record"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("error: ") and "C++ compiler" in err and "--no-compile" in err and "\n" not in err
+        assert not any(tmp_path.iterdir()), "nothing is written before the compiler is found"
+        assert main(["--algo", "neat", *tiny, "--no-compile", "--out", str(tmp_path), "--name", "eager",
+                     "--quiet", "--no-record"]) == 0
+        assert main(["--algo", "neat", "--preset", "smoke", "--out", str(tmp_path), "--name", "smoke",
+                     "--quiet", "--no-record"]) == 0
+    settings = [json.loads((tmp_path / name / "config.json").read_text()) for name in ("eager", "smoke")]
+    assert [(s["compile"], s["eval_threads"]) for s in settings] == [(False, 2), (False, 1)]
+
+
 def test_config_typo_in_toml(tmp_path, capsys):
     config = tmp_path / "run.toml"
     config.write_text('algo = "neat"\npopulaton = 20\n')
