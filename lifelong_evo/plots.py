@@ -113,8 +113,8 @@ def _float(text: str) -> float:
 
 IGNORED_CONFIG_KEYS = ("seed", "versions", "name", "record", "threads", "eval_threads", "compile", "device",
                        "checkpoint_every", "episodes_every")
-"""config.json keys that do not make two runs different configurations (the seed, and what does
-not change the results)."""
+"""config.json keys that do not make two runs different configurations: the seed, and the speed
+and output settings (these change at most the rounding of a run's numbers)."""
 
 
 def config_key(config: dict[str, Any]) -> str:

@@ -411,7 +411,7 @@ def selection_score(summary: dict[str, Any]) -> float | None:
 
 _SAME_CONFIGURATION_IGNORES = ("reg", *IGNORED_CONFIG_KEYS)
 """Keys left out when grouping runs for the m.s. lambda: lambda, and what ``compare`` leaves out
-(the seed and what does not change results)."""
+(the seed, and the speed and output settings)."""
 
 
 def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]) -> list[dict[str, Any]]:
