@@ -6,7 +6,8 @@ versions and the options that do not change results: record, threads, eval_threa
 episodes_every) and writes, to ``--out`` (default: the one folder given, else ``comparison/``):
 
 ``comparison.md``    an overview (one line per configuration), then per configuration the paper's
-                     table: current performance C per phase, retention R and forgetting F of the
+                     table: current performance C per phase (and C_top, the top individual's),
+                     retention R and forgetting F of the
                      population and the top individual at each later task end, ACC/BWT/FWT;
                      every value is the mean over seeds with its 95% bootstrap interval
                      (2000 resamples, fixed seed; one seed: the value alone)
@@ -56,8 +57,11 @@ def _nan(value) -> bool:
 def run_metrics(summary: dict[str, Any]) -> list[tuple[str, str, float | None]]:
     """(section, metric name, value) of one run's summary.json, in table order."""
     out: list[tuple[str, str, float | None]] = []
-    for i, (task, value) in enumerate(zip(summary.get("phases", []), summary.get("current", []))):
+    phases = summary.get("phases", [])
+    for i, (task, value) in enumerate(zip(phases, summary.get("current", []))):
         out.append(("current", f"C phase {i} ({task})", value))
+    for i, (task, value) in enumerate(zip(phases, summary.get("current_top", []))):
+        out.append(("current", f"C_top phase {i} ({task})", value))
     for row in summary.get("forgetting", []):
         where = f"{row['task']} at end of phase {row['at_end_of']}"
         for key in ("R_pop", "F_pop", "R_top", "F_top"):
@@ -109,7 +113,8 @@ def compare_table(paths) -> tuple[list[dict[str, Any]], str]:
     header = [f"# Comparison of {len(runs)} run(s) in {len(groups)} configuration(s)", "",
               "Mean over seeds [95% bootstrap interval, "
               f"{RESAMPLES} resamples]; a single seed shows its value. C: current performance at the end of "
-              "a phase; R/F: retention/forgetting of an earlier task (pop: best of the population, top: the "
+              "a phase (C_top: that of the top individual, the best by selection fitness); R/F: "
+              "retention/forgetting of an earlier task (pop: best of the population, top: the "
               "current top individual); ACC/BWT/FWT: average final performance, backward and forward transfer.",
               "", *overview, ""]
     return rows, "\n".join(header + sections)
@@ -118,10 +123,12 @@ def compare_table(paths) -> tuple[list[dict[str, Any]], str]:
 def _section(label: str, group: list[Run], stats: dict) -> str:
     seeds = ", ".join(str(r.seed) for r in group)
     lines = [f"## {label}", "", f"{len(group)} seed(s): {seeds}", ""]
-    current = [(k, v) for k, v in stats.items() if v[0] == "current"]
-    if current:
-        lines += ["| phase | C (current) |", "|---|---|"]
-        lines += [f"| {k[len('C '):]} | {_fmt(*v[1:])} |" for k, v in current]
+    phases = [k[len("C "):] for k, v in stats.items() if v[0] == "current" and k.startswith("C phase ")]
+    if phases:
+        lines += ["| phase | C (current) | C_top (top individual) |", "|---|---|---|"]
+        for where in phases:
+            cells = [_fmt(*stats[f"{m} {where}"][1:]) if f"{m} {where}" in stats else "-" for m in ("C", "C_top")]
+            lines.append(f"| {where} | " + " | ".join(cells) + " |")
         lines.append("")
     forgetting = [k for k, v in stats.items() if v[0] == "forgetting" and k.startswith("R_pop ")]
     if forgetting:

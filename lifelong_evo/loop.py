@@ -91,16 +91,19 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
                                    compiled=config.compile, eval_threads=config.eval_threads)
                 raw = fitness[0]
                 regularised = optimizer.regularise(raw)
-                scores = {task.name: retention(fitness[1 + i], raw, optimizer.centre_index)
+                # the top individual is the one selection favours, as in the paper's code: with a
+                # regulariser on, the best by regularised fitness, which is what one would deploy
+                scores = {task.name: retention(fitness[1 + i], regularised, optimizer.centre_index)
                           for i, task in enumerate(others)}
-                scores[phase.name] = retention(raw, raw, optimizer.centre_index)
-                top = int(raw.argmax())
+                scores[phase.name] = retention(raw, regularised, optimizer.centre_index)
+                top = int(regularised.argmax())
                 periodic = bool(config.episodes_every) and generation % config.episodes_every == 0
                 exported = optimizer.export(top) if last or periodic else None
                 with update_threads(config.threads, config.eval_threads):
                     report = optimizer.tell(raw, regularised)
                 row = {"task": phase.name, "task_index": phase_index, "generation": generation,
-                       "generation_in_task": in_task, **fitness_stats(raw), **fitness_stats(regularised, "reg_")}
+                       "generation_in_task": in_task, **fitness_stats(raw), **fitness_stats(regularised, "reg_"),
+                       "top": raw[top].item()}
                 if report.species_sizes is not None:
                     row["species"] = len(report.species_sizes)
                 if has_centre:

@@ -1,11 +1,18 @@
 """The paper's metrics and the continual-learning ones, from fitness tensors.
 
-Per generation g of phase t with population P_t (fitness f over the controllers):
+Per generation g of phase t with population P_t (fitness f over the controllers, s_t the
+fitness selection uses: f_t itself, or with a regulariser on the regularised fitness):
   C(P_t)        = max_pi f_t(pi)                        current performance
+  top(P_t)      = argmax_pi s_t(pi)                     the top individual, the one selection favours
   R_pop_u(P_t)  = max_pi f_u(pi)                        population retention of an earlier task u
-  R_top_u(P_t)  = f_u(argmax_pi f_t(pi))                retention of the current top individual
+  R_top_u(P_t)  = f_u(top(P_t))                         retention of the current top individual
 At the end of phase t, for each task u of an earlier phase (the latest such phase s):
-  F_pop/top_u   = C(P_s at its end) - R_pop/top_u(P_t at its end)      forgetting
+  F_pop_u       = C(P_s at its end) - R_pop_u(P_t at its end)                  forgetting
+  F_top_u       = R_top_u(P_s at its end) - R_top_u(P_t at its end)
+(without a regulariser R_top_u(P_u) = C(P_u), so the two forgettings start from the same C). The
+top individual follows the paper's code, which ranks by the fitness neat-python sees: with the
+genetic-distance penalty on, its "current performance" and retention are those of the best
+regularised genome, not of the best raw one.
 Over the T phases of the schedule, with R[i][j] the fitness on phase j's task at the end of
 phase i (R_pop: best of the population; R_top: the top individual of phase i) and b_j the best
 fitness of the fresh random population (generation 0) on phase j's task:
@@ -27,9 +34,10 @@ def fitness_stats(values: torch.Tensor, prefix: str = "") -> dict[str, float]:
             f"{prefix}std": values.std(unbiased=False).item()}
 
 
-def retention(scores: torch.Tensor, current: torch.Tensor, centre_index: int | None) -> dict[str, float]:
-    """Population, top-individual (and centre) retention from one task's fitness ``scores``."""
-    top = int(current.argmax())
+def retention(scores: torch.Tensor, selection: torch.Tensor, centre_index: int | None) -> dict[str, float]:
+    """Population, top-individual (and centre) retention from one task's fitness ``scores``; the
+    top individual is the best by ``selection``, the fitness selection uses on the current task."""
+    top = int(selection.argmax())
     values = {"pop": scores.max().item(), "top": scores[top].item()}
     if centre_index is not None:
         values["centre"] = scores[centre_index].item()
@@ -40,16 +48,17 @@ def summarise(phase_names: list[str], phase_ends: list[dict[str, Any]], initial:
               wall_time_s: float, has_centre: bool) -> dict[str, Any]:
     """summary.json from the task-end records (see ``LifelongRun``) and the generation-0 scores."""
     summary: dict[str, Any] = {"phases": phase_names[:len(phase_ends)], "wall_time_s": wall_time_s,
-                               "current": [end["C"] for end in phase_ends], "forgetting": []}
+                               "current": [end["C"] for end in phase_ends],
+                               "current_top": [end["R_top"][end["task"]] for end in phase_ends], "forgetting": []}
     if has_centre:
         summary["centre_current"] = [end["R_centre"][end["task"]] for end in phase_ends]
     for i, end in enumerate(phase_ends):
         for earlier in _earlier_tasks(phase_names, i):
             s = max(j for j in range(i) if phase_names[j] == earlier)
-            c_earlier = phase_ends[s]["C"]
-            row = {"at_end_of": i, "task": earlier, "C": c_earlier,
+            c_earlier, top_earlier = phase_ends[s]["C"], phase_ends[s]["R_top"][earlier]
+            row = {"at_end_of": i, "task": earlier, "C": c_earlier, "C_top": top_earlier,
                    "R_pop": end["R_pop"][earlier], "R_top": end["R_top"][earlier],
-                   "F_pop": c_earlier - end["R_pop"][earlier], "F_top": c_earlier - end["R_top"][earlier]}
+                   "F_pop": c_earlier - end["R_pop"][earlier], "F_top": top_earlier - end["R_top"][earlier]}
             if has_centre:
                 row["R_centre"] = end["R_centre"][earlier]
                 row["F_centre"] = phase_ends[s]["R_centre"][earlier] - end["R_centre"][earlier]

@@ -5,7 +5,8 @@ For each group of runs that share a configuration (config.json without seed and 
 ``<prefix>-retention-pop.png``  current performance C (solid) and population retention R_pop
                                  (dashed, dots where measured) per task colour over generations;
                                  drifts as grey dashed vertical lines
-``<prefix>-retention-top.png``  the same with the retention of the current top individual
+``<prefix>-retention-top.png``  the top individual's current fitness (solid) and retention
+                                 R_top (dashed); without a regulariser its current fitness is C
 ``<prefix>-species.png``        NEAT: the number of species over generations
 ``<prefix>-lifespans[-seed<S>].png``  NEAT: each species' life (birth to extinction) and size,
                                  from ``species.csv`` (generation, species_id, size); one per seed
@@ -259,9 +260,12 @@ def figure_retention(group: list[Run], level: str, path: Path) -> Path:
     import matplotlib.pyplot as plt
 
     what = {"pop": "population retention R_pop", "top": "top-individual retention R_top"}[level]
+    # runs from before the "top" column draw C: the same curve unless a regulariser ranked them
+    current = "top" if level == "top" and np.isfinite(group[0].column("top")).any() else "best"
+    label = {"best": "current C", "top": "top individual, current"}[current]
     fig, ax = plt.subplots(figsize=(9, 4.8), constrained_layout=True)
-    for task, (generations, values) in current_by_task(group).items():
-        _band(ax, generations, values, task_colour(task), "-", f"{task}: current C")
+    for task, (generations, values) in current_by_task(group, current).items():
+        _band(ax, generations, values, task_colour(task), "-", f"{task}: {label}")
     for task, (generations, values) in retention_by_task(group, level).items():
         marker = "o" if len(generations) < 40 else None
         _band(ax, generations, values, task_colour(task), "--", f"{task}: {what.split(' R_')[0]}", marker=marker)

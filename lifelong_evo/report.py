@@ -9,11 +9,13 @@ def _fmt(value) -> str:
 
 
 def summary_table(summary: dict[str, Any]) -> str:
-    """The paper's table for one run: current performance per phase, then retention and
+    """The paper's table for one run: current performance per phase (the population's best and
+    the top individual's: they differ when a regulariser ranks the population), then retention and
     forgetting of each earlier task at each later task end, then the transfer metrics."""
-    lines = ["phase  task     C (current)"]
-    for i, (name, c) in enumerate(zip(summary["phases"], summary["current"])):
-        lines.append(f"{i:>5}  {name:<7}  {_fmt(c)}")
+    lines = ["phase  task     C (current)   top individual"]
+    tops = summary.get("current_top") or [None] * len(summary["current"])
+    for i, (name, c, top) in enumerate(zip(summary["phases"], summary["current"], tops)):
+        lines.append(f"{i:>5}  {name:<7}  {_fmt(c):>11}   {_fmt(top):>14}")
     if summary["forgetting"]:
         lines.append("")
         lines.append("at end of  task     R_pop   F_pop   R_top   F_top")

@@ -136,6 +136,7 @@ def metric_columns(task_names: Iterable[str], has_species: bool, has_centre: boo
     columns = ["task", "task_index", "generation", "generation_in_task"]
     for prefix in ("", "reg_"):
         columns += [f"{prefix}best", f"{prefix}mean", f"{prefix}median", f"{prefix}std"]
+    columns.append("top")
     if has_species:
         columns.append("species")
     if has_centre:

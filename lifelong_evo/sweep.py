@@ -21,9 +21,9 @@ checkpoints (``--overwrite`` restarts every trial). A failed trial is recorded a
 on; Ctrl-C cancels the running trials (their checkpoints are kept) and exits with 130.
 
 Model-specific lambda ("m.s. reg"): for each configuration without lambda and each seed, the lambda
-maximising ``C(phase 1) + R_top(task of phase 0 at the end of phase 1)`` from ``summary.json``
-(current performance plus retention of the top individual at the end of the second task; ties go
-to the smaller lambda), reported as its own row with the chosen lambda per seed.
+maximising ``C_top(phase 1) + R_top(task of phase 0 at the end of phase 1)`` from ``summary.json``
+(the top individual's current performance plus its retention of the first task at the end of the
+second task: the controller one would deploy, good at both; ties go to the smaller lambda), reported as its own row with the chosen lambda per seed.
 
 Ray: by default a local Ray with one CPU per core; each trial reserves ``--threads`` times ``--eval-threads``
 CPUs (1 unless told otherwise) and ``--gpus-per-trial`` GPUs (runs then use ``--device cuda``). ``--address
@@ -392,21 +392,15 @@ def write_sweep_json(sweep_dir: Path, grid: Grid, ray_settings: dict[str, Any]) 
 # ------------------------------------------------------------------------------- model-specific lambda
 
 def selection_score(summary: dict[str, Any]) -> float | None:
-    """``C(phase 1) + R_top(task of phase 0 at the end of phase 1)``; None before phase 1 ended."""
-    current = summary.get("current") or []
+    """``C_top(phase 1) + R_top(task of phase 0 at the end of phase 1)``; None before phase 1 ended."""
+    current = summary.get("current_top") or []
     phases = summary.get("phases") or []
     if len(current) < 2 or len(phases) < 2:
         return None
-    if summary.get("R_top"):
-        retained = summary["R_top"][1][0]
-    else:
-        rows = [r for r in summary.get("forgetting", []) if r["at_end_of"] == 1 and r["task"] == phases[0]]
-        if not rows:
-            return None
-        retained = rows[0]["R_top"]
-    if current[1] is None or retained is None:
+    rows = [r for r in summary.get("forgetting", []) if r["at_end_of"] == 1 and r["task"] == phases[0]]
+    if not rows or current[1] is None or rows[0]["R_top"] is None:
         return None
-    return float(current[1]) + float(retained)
+    return float(current[1]) + float(rows[0]["R_top"])
 
 
 _SAME_CONFIGURATION_IGNORES = ("reg", *IGNORED_CONFIG_KEYS)

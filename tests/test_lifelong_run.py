@@ -13,8 +13,10 @@ import time
 from pathlib import Path
 
 import pytest
+import torch
 
 from lifelong_evo.cli import main
+from lifelong_evo.metrics import retention, summarise
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -83,8 +85,15 @@ def test_metrics_are_consistent(smoke_runs, algo):
     assert red_at_green_end["R_pop"] == float(ends[1]["retention_pop_red"])
     assert red_at_green_end["F_pop"] == pytest.approx(float(ends[0]["best"]) - float(ends[1]["retention_pop_red"]))
     assert red_at_green_end["F_top"] == pytest.approx(float(ends[0]["best"]) - float(ends[1]["retention_top_red"]))
+    # the top individual's own fitness: C before any penalty, never above C after
+    assert summary["current_top"] == [float(r["top"]) for r in ends]
+    for row in rows:
+        assert float(row["top"]) <= float(row["best"])
+        if int(row["task_index"]) == 0:
+            assert row["top"] == row["best"]
     green_at_red_end = forgetting[(2, "green")]
     assert green_at_red_end["F_pop"] == pytest.approx(float(ends[1]["best"]) - float(ends[2]["retention_pop_green"]))
+    assert green_at_red_end["F_top"] == pytest.approx(float(ends[1]["top"]) - float(ends[2]["retention_top_green"]))
     # the R matrix diagonal is C; BWT follows from it
     matrix = summary["R_pop"]
     assert [matrix[i][i] for i in range(3)] == summary["current"]
@@ -97,6 +106,26 @@ def test_metrics_are_consistent(smoke_runs, algo):
             alive = [s for s in species if s["generation"] == row["generation"]]
             assert len(alive) == int(row["species"])
             assert sum(int(s["size"]) for s in alive) == 20
+
+
+def test_the_top_individual_is_the_best_by_selection_fitness():
+    """With a regulariser on, the top individual is the best regularised one (as in the paper's
+    code), and its forgetting starts from its own fitness, not from the population's best."""
+    raw = torch.tensor([9.0, 7.0, 5.0])
+    regularised = torch.tensor([1.0, 6.0, 4.0])   # the penalty ranks controller 1 first
+    on_red = torch.tensor([0.0, 3.0, 8.0])
+    assert retention(on_red, regularised, centre_index=None) == {"pop": 8.0, "top": 3.0}
+    assert retention(raw, regularised, centre_index=2) == {"pop": 9.0, "top": 7.0, "centre": 5.0}
+    ends = [{"task": "red", "C": 9.0, "R_pop": {"red": 9.0, "green": 2.0}, "R_top": {"red": 9.0, "green": 1.0}},
+            {"task": "green", "C": 12.0, "R_pop": {"red": 8.0, "green": 12.0}, "R_top": {"red": 3.0, "green": 7.0}},
+            {"task": "red", "C": 10.0, "R_pop": {"red": 10.0, "green": 11.0}, "R_top": {"red": 6.0, "green": 4.0}}]
+    initial = {"pop": {"red": 1.0, "green": 1.0}, "top": {"red": 0.0, "green": 0.0}}
+    summary = summarise(["red", "green", "red"], ends, initial, wall_time_s=1.0, has_centre=False)
+    assert summary["current"] == [9.0, 12.0, 10.0] and summary["current_top"] == [9.0, 7.0, 6.0]
+    forgetting = {(f["at_end_of"], f["task"]): f for f in summary["forgetting"]}
+    assert forgetting[(1, "red")]["F_top"] == 9.0 - 3.0 and forgetting[(1, "red")]["F_pop"] == 9.0 - 8.0
+    # green: the top individual had 7 at the end of green, not the population's 12
+    assert forgetting[(2, "green")]["F_top"] == 7.0 - 4.0 and forgetting[(2, "green")]["F_pop"] == 12.0 - 11.0
 
 
 def test_same_seed_same_numbers(smoke_runs, tmp_path):

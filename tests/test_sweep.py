@@ -133,7 +133,9 @@ def test_grid_from_flags_and_file(tmp_path, capsys):
 
 
 def _summary(c1: float, r_top: float, complete: bool = True) -> dict:
-    summary = {"phases": ["red", "green", "red"], "current": [5.0, c1, 6.0], "wall_time_s": 1.0,
+    # the population's best (C) is above the top individual's (C_top): selection scores the latter
+    summary = {"phases": ["red", "green", "red"], "current": [5.0, c1 + 10, 6.0],
+               "current_top": [5.0, c1, 6.0], "wall_time_s": 1.0,
                "forgetting": [{"at_end_of": 1, "task": "red", "C": 5.0, "R_pop": r_top + 1, "R_top": r_top,
                                "F_pop": 0.0, "F_top": 0.0}]}
     if complete:
@@ -163,5 +165,6 @@ def test_model_specific_lambda_selection():
                                            [config for config, _, _ in runs])
     (line,) = [row for row in markdown.splitlines() if row.startswith("| neat reg=m.s.")]
     assert "| 2 | 1: 5, 2: 0 | 7.50 [7.00, 8.00] |" in line
-    c1 = next(row for row in rows if row["metric"] == "C phase 1 (green)")
+    c1 = next(row for row in rows if row["metric"] == "C_top phase 1 (green)")
     assert c1["values"] == [4.0, 6.0] and c1["reg"] == "m.s. 5 0" and c1["mean"] == 5.0
+    assert next(row for row in rows if row["metric"] == "C phase 1 (green)")["values"] == [14.0, 16.0]
