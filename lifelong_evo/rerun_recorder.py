@@ -238,6 +238,7 @@ class RerunRecorder(Recorder):
                          f"{task}{label} best", 2.0)
             self._scalar(generation, f"curves/{kind}/{task}/mean", row.get(f"{prefix}mean"), light,
                          f"{task}{label} mean", 1.0)
+        self._scalar(generation, f"curves/current/{task}/top", row.get("top"), colour, f"{task} top individual", 1.5)
         if "centre" in row:
             self._scalar(generation, f"curves/centre/{task}", row["centre"], colour, f"{task} centre", 1.5)
         if "species" in row:
@@ -261,6 +262,7 @@ class RerunRecorder(Recorder):
         # performance, the new task's retention), so that the viewer does not join its phases
         pausing = [f"curves/{kind}/{previous}/{stat}" for kind in ("current", "regularised")
                    for stat in ("best", "mean")]
+        pausing += [f"curves/current/{previous}/top"]
         pausing += [f"curves/centre/{previous}"]
         pausing += [f"curves/retention_{level}/{task}" for level in ("pop", "top", "centre")]
         for entity in pausing:

@@ -56,7 +56,7 @@ def check_scalars_equal_metrics(run: Path, rows: dict[str, list[dict]]) -> int:
         g, task = int(row["generation"]), row["task"]
         for key, entity in (("best", f"curves/current/{task}/best"), ("mean", f"curves/current/{task}/mean"),
                             ("reg_best", f"curves/regularised/{task}/best"),
-                            ("reg_mean", f"curves/regularised/{task}/mean"),
+                            ("reg_mean", f"curves/regularised/{task}/mean"), ("top", f"curves/current/{task}/top"),
                             ("species", "curves/species"), ("centre", f"curves/centre/{task}")):
             if row.get(key):
                 expected[entity][g] = float(row[key])
