@@ -15,7 +15,6 @@ not disturbed. ``state_dict`` holds that state, so a resumed run continues bit-f
 """
 from __future__ import annotations
 
-import copy
 import itertools
 import json
 import math
@@ -99,7 +98,11 @@ class NeatOptimizer(Optimizer):
         """The best genome by selection fitness so far, kept as neat-python keeps it (a
         reference: an elite's ``fitness`` is overwritten when it is evaluated again)."""
         self.task_best = None
-        """Deep copy of the genome with the highest selection fitness of the current task."""
+        """The best genome by selection fitness of the current task, kept as ``best_genome`` is
+        (the paper's code takes its reference from neat-python's ``best_genome``): the genome
+        itself, so when it is evaluated again as an elite its new fitness is what later genomes
+        must beat. A lucky evaluation therefore does not stay the reference for the rest of the
+        task. One pickle holds it with the population (``state_dict``), so resuming keeps that."""
         self.reference_genomes: list = []
         """One reference per finished task (``end_task``), oldest first."""
         self._asked: list | None = None
@@ -188,7 +191,7 @@ class NeatOptimizer(Optimizer):
         if self.best_genome is None or best.fitness > self.best_genome.fitness:
             self.best_genome = best
         if self.task_best is None or best.fitness > self.task_best.fitness:
-            self.task_best = copy.deepcopy(best)
+            self.task_best = best
         with self._neat_random():
             self.population = self.reproduction.reproduce(
                 self.config, self.species, self.config.pop_size, self.generation)
