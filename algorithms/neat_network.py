@@ -82,6 +82,29 @@ def neat_config_path() -> str:
     return str(resources.files("algorithms").joinpath("neat_config.ini"))
 
 
+class Reproduction(neat.DefaultReproduction):
+    """neat-python 2.0.0's ``DefaultReproduction`` with one bug fixed: ``_adjust_spawn_exact``,
+    when the species' spawn counts add up to more than the population, takes one genome off each
+    species above the minimum size in one pass and then gives up. One large species next to one
+    at the minimum is enough for it to raise "Internal error adjusting spawn counts" in the
+    middle of a run (a paper run with lambda = 11 hit it at generation 321). Here the passes go
+    on until the counts fit; wherever neat-python's own succeeds, the counts are the same."""
+
+    def _adjust_spawn_exact(self, spawn_amounts, pop_size, min_species_size):
+        excess = sum(spawn_amounts) - pop_size
+        if excess <= 0 or len(spawn_amounts) * min_species_size > pop_size:
+            return super()._adjust_spawn_exact(spawn_amounts, pop_size, min_species_size)
+        spawn_amounts = list(spawn_amounts)
+        # neat-python's order: larger species first, ties by species order (a stable sort)
+        order = sorted(range(len(spawn_amounts)), key=lambda i: spawn_amounts[i], reverse=True)
+        while excess > 0:
+            for i in order:
+                if excess > 0 and spawn_amounts[i] > min_species_size:
+                    spawn_amounts[i] -= 1
+                    excess -= 1
+        return spawn_amounts
+
+
 def build_neat_config(num_inputs: int, pop_size: int = 300,
                       overrides: Mapping[str, Mapping[str, object]] | None = None) -> neat.Config:
     """A fresh ``neat.Config`` with the paper's values, ``num_inputs`` inputs and ``pop_size``.
@@ -104,11 +127,14 @@ def build_neat_config(num_inputs: int, pop_size: int = 300,
             if not parser.has_option(section, key):
                 raise KeyError(f"unknown NEAT option [{section}] {key}")
             parser[section][key] = str(value)
+    # neat-python reads each component's options from the section named after its class
+    parser[Reproduction.__name__] = dict(parser["DefaultReproduction"])
+    parser.remove_section("DefaultReproduction")
     fd, path = tempfile.mkstemp(prefix="neat-config-", suffix=".ini")
     try:
         with os.fdopen(fd, "w") as f:
             parser.write(f)
-        config = neat.Config(neat.DefaultGenome, neat.DefaultReproduction,
+        config = neat.Config(neat.DefaultGenome, Reproduction,
                              neat.DefaultSpeciesSet, neat.DefaultStagnation, path)
     finally:
         os.unlink(path)

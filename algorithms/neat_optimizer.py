@@ -4,7 +4,8 @@ regulariser.
 One ``tell`` is one generation of neat-python's ``Population.run`` without the reporters:
 best-genome tracking on ``genome.fitness`` (the selection fitness), ``reproduce``,
 complete-extinction handling, ``speciate``, ``generation += 1``. The components are neat-python's
-own (``DefaultReproduction``, ``DefaultSpeciesSet``, ``DefaultStagnation``) with the paper's
+own (``DefaultReproduction``, with a fix of its spawn-count adjustment: ``neat_network.Reproduction``;
+``DefaultSpeciesSet``, ``DefaultStagnation``) with the paper's
 configuration (``neat_config.ini``, built per optimiser by ``build_neat_config``).
 
 Randomness: neat-python draws from the global ``random`` module. The optimiser keeps its own

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from algorithms.base import GenerationReport
-from algorithms.neat_network import build_neat_config
+from algorithms.neat_network import Reproduction, build_neat_config
 from algorithms.neat_optimizer import NeatOptimizer
 
 POP = 40
@@ -308,3 +308,33 @@ def test_export_is_json():
         assert len(data["genome"]["connections"]) == len(genome.connections)
         assert data["network"]["network_type"] == "feedforward"
         assert data["zero_outputs"] == [i for i in range(3) if policy.zero_outputs[index, i]]
+
+
+def test_spawn_counts_fit_the_population_where_neat_python_gives_up():
+    """neat-python 2.0.0 raises mid-run when the species' spawn counts exceed the population by
+    more than one per species above the minimum; the fixed reproduction trims them, and gives
+    neat-python's own counts wherever neat-python succeeds."""
+    config = build_neat_config(41, pop_size=300)
+    assert config.reproduction_type is Reproduction
+    ours = Reproduction(config.reproduction_config, neat.reporting.ReporterSet(), None)
+    theirs = neat.DefaultReproduction(config.reproduction_config, neat.reporting.ReporterSet(), None)
+    with pytest.raises(RuntimeError, match="Internal error adjusting spawn counts"):
+        theirs._adjust_spawn_exact([300, 5], 300, 5)
+    assert ours._adjust_spawn_exact([300, 5], 300, 5) == [295, 5]
+    assert ours._adjust_spawn_exact([120, 200, 5, 5], 300, 5) == [105, 185, 5, 5]
+    rng = random.Random(0)
+    agreed = 0
+    for _ in range(2000):
+        counts = [rng.choice([5, 5, rng.randint(5, 40), rng.randint(5, 300)]) for _ in range(rng.randint(1, 8))]
+        pop = rng.randint(len(counts) * 5, 320)
+        try:
+            expected = theirs._adjust_spawn_exact(list(counts), pop, 5)
+        except RuntimeError:
+            expected = None
+        got = ours._adjust_spawn_exact(list(counts), pop, 5)
+        assert sum(got) == pop and min(got) >= 5
+        if expected is not None:
+            assert got == expected
+            agreed += 1
+    assert agreed > 500
+
