@@ -437,7 +437,7 @@ def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]
     return result
 
 
-CRITERION = "C(phase 1) + R_top(task of phase 0 at end of phase 1)"
+CRITERION = "C_top(phase 1) + R_top(task of phase 0 at end of phase 1)"
 
 
 def model_specific_label(config: dict[str, Any], all_configs: list[dict[str, Any]]) -> str:
@@ -494,8 +494,9 @@ def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any,
         sections.append("\n".join(lines))
     markdown = "\n".join([
         "## Model-specific lambda (m.s. reg)", "",
-        f"Per configuration and seed, the lambda of the sweep maximising {CRITERION} (current performance "
-        "plus the top individual's retention at the end of the second task; ties: the smaller lambda), "
+        f"Per configuration and seed, the lambda of the sweep maximising {CRITERION} (the top individual's "
+        "current performance plus its retention of the first task, at the end of the second task; ties: "
+        "the smaller lambda), "
         "from summary.json. Mean over seeds [95% bootstrap interval] of the chosen runs.", "",
         *overview, "", "\n\n".join(sections)])
     return rows, markdown
