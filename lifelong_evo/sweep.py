@@ -23,7 +23,8 @@ on; Ctrl-C cancels the running trials (their checkpoints are kept) and exits wit
 Model-specific lambda ("m.s. reg"): for each configuration without lambda and each seed, the lambda
 maximising ``C_top(phase 1) + R_top(task of phase 0 at the end of phase 1)`` from ``summary.json``
 (the top individual's current performance plus its retention of the first task at the end of the
-second task: the controller one would deploy, good at both; ties go to the smaller lambda), reported as its own row with the chosen lambda per seed.
+second task: the controller one would deploy, good at both; ties go to the smaller lambda),
+reported as its own row with the chosen lambda per seed.
 
 Ray: by default a local Ray with one CPU per core; each trial reserves ``--threads`` times ``--eval-threads``
 CPUs (1 unless told otherwise) and ``--gpus-per-trial`` GPUs (runs then use ``--device cuda``). ``--address
