@@ -57,11 +57,9 @@ def _nan(value) -> bool:
 def run_metrics(summary: dict[str, Any]) -> list[tuple[str, str, float | None]]:
     """(section, metric name, value) of one run's summary.json, in table order."""
     out: list[tuple[str, str, float | None]] = []
-    phases = summary.get("phases", [])
-    for i, (task, value) in enumerate(zip(phases, summary.get("current", []))):
-        out.append(("current", f"C phase {i} ({task})", value))
-    for i, (task, value) in enumerate(zip(phases, summary.get("current_top", []))):
-        out.append(("current", f"C_top phase {i} ({task})", value))
+    for name, key in (("C", "current"), ("C_top", "current_top")):
+        for i, (task, value) in enumerate(zip(summary.get("phases", []), summary.get(key, []))):
+            out.append(("current", f"{name} phase {i} ({task})", value))
     for row in summary.get("forgetting", []):
         where = f"{row['task']} at end of phase {row['at_end_of']}"
         for key in ("R_pop", "F_pop", "R_top", "F_top"):
