@@ -26,9 +26,17 @@ WARM_UP_STEPS = 3
 
 
 def _timed(fn):
+    _wait_for_gpu()
     start = time.perf_counter()
     result = fn()
+    _wait_for_gpu()
     return result, time.perf_counter() - start
+
+
+def _wait_for_gpu() -> None:
+    """CUDA kernels run asynchronously: a time read before they finish would miss them."""
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        torch.cuda.synchronize()
 
 
 def bench_env(n_envs: int, steps: int, config: ForagingConfig, device: str, compile_env: bool,

@@ -160,13 +160,13 @@ def check_obs(got: torch.Tensor, expected: list, atol: float, c: ForagingConfig,
 
 
 def run_against_oracle(c: ForagingConfig, task_names, batch: int, n_steps: int, seed: int,
-                       dtype=torch.float64, obs_atol=1e-5) -> Counter:
+                       dtype=torch.float64, obs_atol=1e-5, device="cpu") -> Counter:
     rng = random.Random(seed)
     tasks = [TASKS[task_names[b % len(task_names)]] for b in range(batch)]
     states = [random_state(rng, c, t) for t in tasks]
-    env = ForagingEnv(c, batch_size=batch, device="cpu", dtype=dtype)
+    env = ForagingEnv(c, batch_size=batch, device=device, dtype=dtype)
     try:
-        obs = env.reset(state=batched_state_from(states, c.n_colors, dtype=dtype))
+        obs = env.reset(state=batched_state_from(states, c.n_colors, dtype=dtype)).cpu()
     except RuntimeError as e:
         raise AssertionError(f"BUG: the environment crashed on reset with batch_size={batch}, {c}: {e}") from e
     oracles = [Oracle(c, s) for s in oracle_states_from(env.state)]
@@ -177,9 +177,10 @@ def run_against_oracle(c: ForagingConfig, task_names, batch: int, n_steps: int, 
     for t in range(n_steps):
         wheels = [policy(rng, o) for o in oracles]
         try:
-            obs, reward, done, info = env.step(torch.tensor(wheels, dtype=dtype))
+            obs, reward, done, info = env.step(torch.tensor(wheels, dtype=dtype, device=device))
         except RuntimeError as e:
             raise AssertionError(f"BUG: the environment crashed on step {t} with batch_size={batch}, {c}: {e}") from e
+        obs, reward, done, info = obs.cpu(), reward.cpu(), done.cpu(), {k: v.cpu() for k, v in info.items()}
         assert obs.shape == (batch, c.n_agents, c.obs_dim) and reward.shape == (batch,) and done.shape == (batch,)
         for b, o in enumerate(oracles):
             was_done = o.s.done
@@ -218,7 +219,7 @@ def run_against_oracle(c: ForagingConfig, task_names, batch: int, n_steps: int, 
                 stats["early_ends" if o.s.retrieved >= c.max_retrieves else "duration_ends"] += 1
         stats["env_steps"] += batch
     # the full state agrees at the end (frozen environments included)
-    final = env.state
+    final = env.state.to("cpu")
     for b, o in enumerate(oracles):
         s = o.s
         assert int(final.steps[b]) == s.steps and int(final.retrieved[b]) == s.retrieved, f"env {b}: counters"
