@@ -36,7 +36,8 @@ _FIELD_DOCS = {
     "checkpoint_every": "checkpoint every this many generations",
     "device": "torch device (cpu, cuda, ...)",
     "threads": "torch CPU threads",
-    "eval_threads": "evaluation threads, each playing a slice of the population with its own env; 1 in the smoke preset",
+    "eval_threads": ("evaluation threads, each playing a slice of the population with its own env; "
+                     "1 in the smoke preset; use 1 on a GPU"),
     "episodes_every": "also record episodes every this many generations (0: task ends only)",
 }
 

@@ -40,7 +40,8 @@ class RunConfig:
     eval_threads: int = 2
     """Evaluation threads, each playing its own slice of the population with its own env (ask
     and tell get threads x eval_threads torch threads); a fixed count, not the machine's core
-    count, because the count can change the rounding of a run's numbers."""
+    count, because the count can change the rounding of a run's numbers. Use 1 on a GPU: the
+    threads share the one device, and two ran the NEAT generation at half the speed of one."""
     compile: bool = True
     """torch.compile the environment's step: about 2.5x faster steps after 20-60 s of compiling
     per batch shape; needs a C++ compiler."""
