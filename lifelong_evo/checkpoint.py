@@ -42,7 +42,9 @@ def _key() -> bytes:
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` through a temporary file and a rename: a kill leaves either
-    the old file or the new one, never half of one."""
+    the old file or the new one, never half of one. Missing folders are made: a run copied
+    without its ``controllers/`` still resumes."""
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
     with open(tmp, "wb") as handle:
         handle.write(data)

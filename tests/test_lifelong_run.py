@@ -205,6 +205,23 @@ def test_corrupt_checkpoint_is_refused(smoke_runs, tmp_path, capsys):
     assert "corrupt or was not written by this machine" in err
 
 
+def test_resume_of_a_copy_without_controllers(smoke_runs, tmp_path):
+    """A run copied with only its metrics and an early checkpoint (as a file transfer that
+    dropped folders leaves it) resumes, remakes the missing folder and repeats its numbers."""
+    import shutil
+
+    run = tmp_path / "copy"
+    shutil.copytree(smoke_runs / "neat", run)
+    shutil.rmtree(run / "controllers")
+    checkpoints = sorted(run.glob("checkpoints/*.pt"))
+    assert len(checkpoints) >= 2
+    for later in checkpoints[1:]:
+        later.unlink()
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 0
+    assert (run / "metrics.csv").read_text() == (smoke_runs / "neat/metrics.csv").read_text()
+    assert (run / "controllers/final-top.json").read_text() == (smoke_runs / "neat/controllers/final-top.json").read_text()
+
+
 def test_resume_refuses_changed_settings(smoke_runs, capsys):
     assert main(["--resume", "--out", str(smoke_runs), "--name", "neat", "--population", "50"]) == 2
     assert "stored settings" in capsys.readouterr().err
