@@ -6,6 +6,7 @@ import csv
 import json
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -192,8 +193,6 @@ def test_existing_run_needs_resume_or_overwrite(smoke_runs, capsys):
 
 
 def test_corrupt_checkpoint_is_refused(smoke_runs, tmp_path, capsys):
-    import shutil
-
     run = tmp_path / "copy"
     shutil.copytree(smoke_runs / "neat", run)
     latest = sorted(run.glob("checkpoints/*.pt"))[-1]
@@ -208,8 +207,6 @@ def test_corrupt_checkpoint_is_refused(smoke_runs, tmp_path, capsys):
 def test_resume_of_a_copy_without_controllers(smoke_runs, tmp_path):
     """A run copied with only its metrics and an early checkpoint (as a file transfer that
     dropped folders leaves it) resumes, remakes the missing folder and repeats its numbers."""
-    import shutil
-
     run = tmp_path / "copy"
     shutil.copytree(smoke_runs / "neat", run)
     shutil.rmtree(run / "controllers")
