@@ -20,7 +20,13 @@ from .es import ESOptimizer
 
 
 class _AskTellCMAES(_EvoCMAES):
-    """EvoTorch's CMA-ES, unchanged except that ``step()`` reuses the samples handed out by ask."""
+    """EvoTorch's CMA-ES, with two changes: ``step()`` reuses the samples handed out by ask, and
+    the full covariance's rank-mu sum is one matmul.
+
+    EvoTorch sums the weighted outer products ``w_i y_i y_i^T`` through a (popsize, d, d) tensor:
+    627 MB and about 0.4 s per update at 300 x 723. ``Y^T diag(w) Y`` is the same sum, in about
+    5 ms; only the order of the float additions differs.
+    """
 
     asked: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
 
@@ -28,6 +34,21 @@ class _AskTellCMAES(_EvoCMAES):
         if self.asked is not None:
             return self.asked
         return super().sample_distribution(num_samples)
+
+    def update_C(self, zs, ys, assigned_weights, h_sig):
+        if self.separable:
+            return super().update_C(zs, ys, assigned_weights, h_sig)
+        d = self._problem.solution_length
+        if self.active:  # EvoTorch's own reweighting of the negative weights
+            assigned_weights = torch.where(
+                assigned_weights > 0, assigned_weights, d * assigned_weights / torch.norm(zs, dim=-1).pow(2.0))
+        c1a = self.c_1 * (1 - (1 - h_sig**2) * self.c_c * (2 - self.c_c))
+        weighted_pc = (self.c_1 / (c1a + 1e-23)) ** 0.5 * self.p_c
+        r1_update = c1a * (torch.outer(weighted_pc, weighted_pc) - self.C)
+        weighted_outer_sum = (assigned_weights.unsqueeze(-1) * ys).T @ ys
+        weighted_outer_sum = (weighted_outer_sum + weighted_outer_sum.T) / 2  # exactly symmetric, as EvoTorch's sum is
+        rmu_update = self.c_mu * (weighted_outer_sum - torch.sum(self.weights) * self.C)
+        self.C = self.C + r1_update + rmu_update
 
 
 class CMAES(ESOptimizer):

@@ -35,7 +35,8 @@ def sample_episodes(config: ForagingConfig, tasks: Sequence[Task], n_envs: int, 
 def update_threads(threads: int, eval_threads: int) -> Iterator[None]:
     """Run the block (an optimiser's ``ask`` and ``tell``) with ``threads * eval_threads`` torch
     threads, then go back to ``threads``. Between evaluations the evaluation threads are idle,
-    so their cores can share the update's linear algebra (full CMA-ES's eigendecomposition)."""
+    so their cores can share the update's linear algebra (full CMA-ES's Cholesky factorisation
+    and covariance update, which grow as d^3 and d^2 x population with the parameter count d)."""
     torch.set_num_threads(threads * eval_threads)
     try:
         yield

@@ -138,6 +138,28 @@ def test_mirrored_sampling_needs_even_samples(name):
     torch.testing.assert_close(params[0] - centre, centre - params[1])
 
 
+
+@pytest.mark.parametrize("h_sig", [0.0, 1.0])
+def test_full_cma_covariance_update_equals_evotorchs(h_sig):
+    """The rank-mu sum as one matmul gives EvoTorch's covariance update (active weights included)."""
+    from evotorch.algorithms import CMAES as EvoCMAES
+    opt = make("cmaes")
+    searcher = opt.searcher
+    g = torch.Generator().manual_seed(5)
+    searcher.C = torch.eye(opt.n_parameters) + 0.01 * torch.ones(opt.n_parameters, opt.n_parameters)
+    searcher.p_c = torch.randn(opt.n_parameters, generator=g)
+    zs = torch.randn(opt.n_samples, opt.n_parameters, generator=g)
+    ys = zs @ torch.linalg.cholesky(searcher.C).T
+    weights = searcher.weights[torch.randperm(opt.n_samples, generator=g)]
+    assert (weights < 0).any() and searcher.active
+    before = searcher.C.clone()
+    EvoCMAES.update_C(searcher, zs, ys, weights, torch.tensor(h_sig))
+    expected, searcher.C = searcher.C, before
+    searcher.update_C(zs, ys, weights, torch.tensor(h_sig))
+    assert not expected.equal(before)
+    torch.testing.assert_close(searcher.C, expected, rtol=1e-6, atol=1e-7)
+    assert searcher.C.equal(searcher.C.T)
+
 # ---- the regulariser --------------------------------------------------------------------------
 
 def test_penalty_formula_by_hand():
