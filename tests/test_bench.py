@@ -21,6 +21,28 @@ def test_last_line_is_seconds_per_generation(argv, capsys):
     assert re.fullmatch(r"s_per_generation=\d+\.\d{3}", lines[-1]) and float(lines[-1].split("=")[1]) > 0
 
 
+def test_algo_under_compile_prints_the_eager_figure_first(monkeypatch, capsys):
+    """``--algo X --compile`` times X eagerly, then compiled; the last line is the compiled figure."""
+    import lifelong_evo.bench as bench
+    calls = []
+
+    def fake_bench_algo(algo, population, n_envs, generations, device, compiled, eval_threads=1):
+        calls.append(compiled)
+        seconds = 0.5 if compiled else 2.0
+        return {"ask": 0.0, "evaluate": seconds, "tell": 0.0, "controllers": population,
+                "s_per_generation": seconds}
+
+    monkeypatch.setattr(bench, "bench_algo", fake_bench_algo)
+    main(["--algo", "neat", "--compile"])
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert calls == [False, True]
+    assert "compile=off" in lines[1] and lines[1].endswith("2.000 s/generation")
+    assert "compile=on" in lines[2] and lines[2].endswith("0.500 s/generation")
+    assert lines[-1] == "s_per_generation=0.500"
+    main(["--algo", "neat"])
+    assert calls == [False, True, False]
+
+
 def test_reference_step_senses_what_the_env_senses():
     """``--reference`` times a plain formulation of the same work: on the same arena (no ties)
     its observations are the env's, and its steps keep the one-hots well formed."""
