@@ -24,8 +24,8 @@ class _AskTellCMAES(_EvoCMAES):
     the full covariance's rank-mu sum is one matmul.
 
     EvoTorch sums the weighted outer products ``w_i y_i y_i^T`` through a (popsize, d, d) tensor:
-    627 MB and about 0.4 s per update at 300 x 723. ``Y^T diag(w) Y`` is the same sum, in about
-    5 ms; only the order of the float additions differs.
+    627 MB and about 0.4 s per update at 300 x 723. ``Y^T diag(w) Y`` is the same sum in a few
+    milliseconds; only the order of the float additions differs.
     """
 
     asked: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None

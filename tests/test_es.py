@@ -3,6 +3,7 @@ import io
 
 import pytest
 import torch
+from evotorch.algorithms import CMAES as EvoCMAES
 
 from algorithms.es import ES_ALGORITHMS
 from algorithms.mlp import MLPPolicy
@@ -138,11 +139,9 @@ def test_mirrored_sampling_needs_even_samples(name):
     torch.testing.assert_close(params[0] - centre, centre - params[1])
 
 
-
 @pytest.mark.parametrize("h_sig", [0.0, 1.0])
 def test_full_cma_covariance_update_equals_evotorchs(h_sig):
     """The rank-mu sum as one matmul gives EvoTorch's covariance update (active weights included)."""
-    from evotorch.algorithms import CMAES as EvoCMAES
     opt = make("cmaes")
     searcher = opt.searcher
     g = torch.Generator().manual_seed(5)
@@ -159,6 +158,7 @@ def test_full_cma_covariance_update_equals_evotorchs(h_sig):
     assert not expected.equal(before)
     torch.testing.assert_close(searcher.C, expected, rtol=1e-6, atol=1e-7)
     assert searcher.C.equal(searcher.C.T)
+
 
 # ---- the regulariser --------------------------------------------------------------------------
 
