@@ -18,7 +18,11 @@ TINY = ["--generations", "2", "--population", "8", "--evals", "1", "--retention-
         "--no-compile", "--no-record", "--quiet"]
 
 
-@pytest.mark.parametrize("name", sorted(p.name for p in EXAMPLES.glob("*.toml") if p.name != "sweep.toml"))
+SWEEPS = sorted(p.name for p in EXAMPLES.glob("sweep*.toml"))
+"""Sweep files (a [grid] table over run options); every other .toml is a run configuration."""
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in EXAMPLES.glob("*.toml") if p.name not in SWEEPS))
 def test_experiment_configs_resolve(name):
     config = resolve("paper", load_toml(EXAMPLES / name))
     assert config.generations == 200 and config.population == 300 and config.evals == 10
@@ -32,6 +36,17 @@ def test_experiment_configs_run(name, tmp_path):
     assert config["algo"] == expected["algo"] and config["schedule"] == expected["schedule"]
     if name == "paper_four_tasks.toml":
         assert config["env_resolved"]["colors"] == list(range(3, 11))
+
+
+@pytest.mark.parametrize("name", SWEEPS)
+def test_sweep_files_list_their_trials(name, tmp_path, capsys):
+    grid = load_toml(EXAMPLES / name)["grid"]
+    assert main(["sweep", "--config", str(EXAMPLES / name), "--out", str(tmp_path), "--dry-run"]) == 0
+    trials = [line for line in capsys.readouterr().out.splitlines() if line.startswith("would run")]
+    expected = 1
+    for values in grid.values():
+        expected *= len(values) if isinstance(values, list) else 1
+    assert len(trials) == expected and not any(tmp_path.iterdir())
 
 
 def test_custom_optimizer_example(tmp_path):
