@@ -1,4 +1,4 @@
-"""The batched swarm-foraging environment (../shared/docs/foraging-spec.md), in pure torch.
+"""The batched swarm-foraging environment (its rules: docs/environment.md), in pure torch.
 
 The state a user sees (``ForagingState``) has the batch of ``B`` environments as its first
 dimension. Inside, the arena is kept batch-last (``(agents, B)``, ``(boxes, B)``), because the
