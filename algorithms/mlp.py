@@ -68,7 +68,7 @@ class MLPPolicy:
         self.params = params
         self.population_size = int(params.shape[0])
         # (P, in, out) weights and (P, 1, out) biases, made contiguous once here: a contiguous
-        # right operand makes baddbmm ~1.5x faster than the transposed view on CPU
+        # right operand makes baddbmm faster than the transposed view on CPU
         self._layers = [(w.transpose(1, 2).contiguous(), b.unsqueeze(1).contiguous())
                         for w, b in unflatten(params, self.layer_sizes)]
 

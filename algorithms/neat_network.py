@@ -87,7 +87,7 @@ class Reproduction(neat.DefaultReproduction):
     when the species' spawn counts add up to more than the population, takes one genome off each
     species above the minimum size in one pass and then gives up. One large species next to one
     at the minimum is enough for it to raise "Internal error adjusting spawn counts" in the
-    middle of a run (a paper run with lambda = 11 hit it at generation 321). Here the passes go
+    middle of a run (docs/algorithms.md, pitfalls). Here the passes go
     on until the counts fit; wherever neat-python's own succeeds, the counts are the same."""
 
     def _adjust_spawn_exact(self, spawn_amounts, pop_size, min_species_size):

@@ -1,6 +1,6 @@
 """Environment options and tasks, validated in one place.
 
-Defaults are the paper's (../shared/docs/foraging-spec.md). Lengths are in robot diameters.
+Defaults are the paper's (docs/environment.md). Lengths are in robot diameters.
 """
 from __future__ import annotations
 

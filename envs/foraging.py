@@ -1,4 +1,4 @@
-"""The batched swarm-foraging environment (../shared/docs/foraging-spec.md), in pure torch.
+"""The batched swarm-foraging environment (its rules: docs/environment.md), in pure torch.
 
 The state a user sees (``ForagingState``) has the batch of ``B`` environments as its first
 dimension. Inside, the arena is kept batch-last (``(agents, B)``, ``(boxes, B)``), because the
@@ -361,7 +361,7 @@ class ForagingEnv:
     def compile(self) -> None:
         """Compile the step with ``torch.compile``, as the two fused graphs around the rare
         pick conflicts: moving and reaching, then settling and sensing (static shapes: each
-        batch size compiles once, in 20-60 s). Observations outside ``step`` stay eager.
+        batch size compiles once). Observations outside ``step`` stay eager.
 
         The graphs run under inductor's C++ wrapper, which releases the GIL: several Python
         threads, each stepping its own environment, then run in parallel (see
@@ -493,7 +493,7 @@ class ForagingEnv:
         respawn = torch.full((c.n_agents, ax.shape[1], 2), -1, dtype=torch.int32, device=self.device)
         # with repositioning off, a dropped box is gone. Eagerly, skipping the respawn when nobody
         # drops saves time; in a compiled graph the branch would split the graph, which costs more
-        # than the fused respawn (about 7% of the graph)
+        # than the fused respawn
         if c.repositioning and (torch.compiler.is_compiling() or bool(dropping.any())):
             respawn = (respawn_cells(respawn_key, steps, c.n_agents, int(c.size)) + 1) * dropping[..., None] - 1
             bx, by, present = self._respawn(dropped, respawn, bx, by, present)

@@ -1,9 +1,9 @@
 """The step the speed goals were set with, for ``python -m lifelong_evo.bench --reference``.
 
-The issues' goals (1.5 s per paper generation for the environment) came with figures from a
-prototype: batch-last tensors, ``torch.topk`` over the sensed candidates, one-hots by
-``one_hot``, about 2.2 s per generation eagerly and 1.2 s compiled. ``ReferenceStep`` is that
-plain formulation, so that a machine can be compared with the one those figures came from.
+The speed goals came with figures measured on a prototype step: batch-last tensors,
+``torch.topk`` over the sensed candidates, one-hots by ``one_hot`` (the goals and figures:
+docs/performance.md). ``ReferenceStep`` is that plain formulation, so that a machine can be
+compared with the one those figures came from.
 It is *not* the paper's environment: two agents may pick the same box, respawns are drawn
 from a ``torch.Generator`` (x and y from one range), and tied candidates are sensed in
 ``topk``'s order, not the spec's index order. It senses what the environment senses otherwise

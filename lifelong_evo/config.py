@@ -41,10 +41,10 @@ class RunConfig:
     """Evaluation threads, each playing its own slice of the population with its own env (ask
     and tell get threads x eval_threads torch threads); a fixed count, not the machine's core
     count, because the count can change the rounding of a run's numbers. Use 1 on a GPU: the
-    threads share the one device, and two ran the NEAT generation at half the speed of one."""
+    threads share the one device and only add Python work (docs/performance.md)."""
     compile: bool = True
-    """torch.compile the environment's step: about 2.5x faster steps after 20-60 s of compiling
-    per batch shape; needs a C++ compiler."""
+    """torch.compile the environment's step: faster steps after compiling once per batch shape
+    (docs/performance.md); needs a C++ compiler."""
     record: bool = True
     """Write recording.rrd (Rerun)."""
     episodes_every: int = 0

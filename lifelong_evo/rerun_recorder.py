@@ -19,8 +19,8 @@ What is recorded (application id ``lifelong_evo``, recording id ``lifelong_evo/<
 and ``reward`` (cumulative). These rows also carry the ``generation`` index, so the generation
 timeline shows each episode's last frame. Screen coordinates are (y, x): x is the vertical axis
 and x = 0, where the drop zone is, is the top edge (a 2D view's y axis points down).
-Episodes are sent column-wise (``send_columns``, one call per entity): a paper run's file stays
-at a few MB.
+Episodes are sent column-wise (``send_columns``, one call per entity), which keeps the file
+small.
 
 A default blueprint comes with the recording: the curves on the left, the arena (one tab per
 episode) on the right, the text log below.

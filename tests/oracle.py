@@ -1,6 +1,6 @@
 """A plain, one-environment, scalar-Python reference of the foraging environment.
 
-Written straight from ../shared/docs/foraging-spec.md (NOT from envs/foraging.py), so that the
+Written straight from the rules in docs/environment.md (NOT from envs/foraging.py), so that the
 batched torch environment can be checked against it step for step. Everything here is Python
 floats, ints and loops; readability beats speed.
 

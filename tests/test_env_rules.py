@@ -1,4 +1,4 @@
-"""One small hand-built scenario per rule of ../shared/docs/foraging-spec.md.
+"""One small hand-built scenario per rule of the environment (docs/environment.md).
 
 Each test builds an explicit state (mostly one environment), steps the batched environment with
 known wheel speeds and reads the observation back through ``decode`` (the spec's layout).
