@@ -19,7 +19,6 @@ from __future__ import annotations
 import itertools
 import json
 import math
-import pickle
 import random
 import warnings
 from contextlib import contextmanager
@@ -30,6 +29,7 @@ import torch
 from neat.export import export_network_json
 from neat.reporting import ReporterSet
 
+from . import neat_state
 from .base import GenerationReport, Optimizer
 from .neat_network import (
     NEAT_SIGMOID_SLOPE,
@@ -40,7 +40,7 @@ from .neat_network import (
     genome_layers,
 )
 
-STATE_FORMAT = "lifelong-evo/neat/1"
+STATE_FORMAT = "lifelong-evo/neat/2"
 
 
 def _take_counter(obj, attr: str) -> int | None:
@@ -103,7 +103,7 @@ class NeatOptimizer(Optimizer):
         (the paper's code takes its reference from neat-python's ``best_genome``): the genome
         itself, so when it is evaluated again as an elite its new fitness is what later genomes
         must beat. A lucky evaluation therefore does not stay the reference for the rest of the
-        task. One pickle holds it with the population (``state_dict``), so resuming keeps that."""
+        task. ``state_dict`` stores it as a reference into the population, so resuming keeps that."""
         self.reference_genomes: list = []
         """One reference per finished task (``end_task``), oldest first."""
         self._asked: list | None = None
@@ -219,8 +219,10 @@ class NeatOptimizer(Optimizer):
     # ---------------------------------------------------------------------------- state
 
     def state_dict(self) -> dict[str, Any]:
-        """Plain facts plus every piece of neat-python state as one pickle (``bytes``)."""
+        """Plain facts plus every piece of neat-python state as JSON text (``algorithms.neat_state``):
+        loads with ``torch.load(weights_only=True)`` and continues bit-for-bit."""
         gc = self.config.genome_config
+        neat_state.check_components(self.reproduction, self.species)
         state = {
             "population": self.population,
             "species": self.species.species,
@@ -237,6 +239,7 @@ class NeatOptimizer(Optimizer):
             "random_state": self._random_state,
             "asked_keys": None if self._asked is None else [g.key for g in self._asked],
         }
+        types = neat_state.object_types(self.config, self.species, self.reproduction)
         return {
             "format": STATE_FORMAT,
             "obs_dim": self.obs_dim,
@@ -244,7 +247,7 @@ class NeatOptimizer(Optimizer):
             "unconnected_outputs": self.unconnected_outputs,
             "generation": self.generation,
             "neat_version": getattr(neat, "__version__", "unknown"),
-            "pickle": pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL),
+            "state": neat_state.dumps(state, types),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -253,7 +256,7 @@ class NeatOptimizer(Optimizer):
         for key in ("obs_dim", "population_size"):
             if state[key] != getattr(self, key):
                 raise ValueError(f"state has {key}={state[key]}, this optimiser {getattr(self, key)}")
-        data = pickle.loads(state["pickle"])
+        data = neat_state.loads(state["state"], neat_state.object_types(self.config, self.species, self.reproduction))
         self.population = data["population"]
         self.species.species = data["species"]
         self.species.genome_to_species = data["genome_to_species"]

@@ -1,43 +1,46 @@
-"""Checkpoints: atomic, authenticated, loaded without running code from untrusted files.
+"""Checkpoints: written atomically, checked for damage, read without running code from the file.
 
-A checkpoint is a ``torch.save`` file read back with ``torch.load(weights_only=True)``, which
-only rebuilds tensors and plain containers. NEAT's own state (neat-python genomes, species,
-reproduction counters) has no such form and travels as pickle bytes inside it; those bytes are
-unpickled only after the whole file has passed an HMAC-SHA256 check with this machine's
-checkpoint key, so a checkpoint made elsewhere (or edited) is refused before anything in it
-runs. The key lives in ``$LIFELONG_EVO_KEY`` or ``~/.config/lifelong-evo/checkpoint.key``
-(created on first use); copy it to resume a run on another machine.
+A checkpoint file is the line ``HEADER``, the SHA-256 digest (32 bytes) of the rest, and a
+``torch.save`` file of the payload, read back with ``torch.load(weights_only=True)``, which
+rebuilds only tensors and plain containers. Every optimiser's state is of that form (NEAT's as
+JSON text, see ``algorithms.neat_state``), so a checkpoint needs nothing from the machine that
+wrote it: a run directory copied elsewhere resumes there. The digest is a checksum, not a
+signature: torch does not check its own file for damage, and a flipped bit must not resume a
+run with different numbers.
+
+``load`` raises ``CheckpointError``, one line for the command line: for a file it cannot read,
+for a checkpoint of the earlier signed format (an HMAC tag, then a torch file with NEAT's state
+pickled: ``older_version_error``), and, as ``CorruptCheckpointError``, for a damaged or
+truncated file.
 """
 from __future__ import annotations
 
 import hashlib
-import hmac
 import io
 import os
-import secrets
 from pathlib import Path
 from typing import Any
 
 import torch
 
-_TAG_BYTES = 32
+HEADER = b"lifelong-evo checkpoint 2\n"
+_DIGEST_BYTES = 32
+_OLD_TAG_BYTES = 32  # the HMAC-SHA256 tag that preceded the torch file in the signed format
+_ZIP_START = b"PK\x03\x04"  # how a torch.save file begins
 
 
 class CheckpointError(RuntimeError):
     pass
 
 
-def _key() -> bytes:
-    from_env = os.environ.get("LIFELONG_EVO_KEY")
-    if from_env:
-        return from_env.encode()
-    path = Path(os.environ.get("XDG_CONFIG_HOME", Path.home() / ".config")) / "lifelong-evo" / "checkpoint.key"
-    if not path.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-        with os.fdopen(fd, "w") as handle:
-            handle.write(secrets.token_hex(32))
-    return path.read_text().strip().encode()
+class CorruptCheckpointError(CheckpointError):
+    pass
+
+
+def older_version_error(path: Path) -> CheckpointError:
+    return CheckpointError(
+        f"checkpoint {path} was written by an older version of lifelong-evo (signed, with pickled NEAT state), "
+        "which this version does not read: start the run again with --overwrite, or finish it with the older version")
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -57,7 +60,7 @@ def save(path: Path, payload: dict[str, Any]) -> None:
     buffer = io.BytesIO()
     torch.save(payload, buffer)
     body = buffer.getvalue()
-    atomic_write_bytes(path, hmac.new(_key(), body, hashlib.sha256).digest() + body)
+    atomic_write_bytes(path, HEADER + hashlib.sha256(body).digest() + body)
 
 
 def load(path: Path) -> dict[str, Any]:
@@ -65,12 +68,19 @@ def load(path: Path) -> dict[str, Any]:
         data = Path(path).read_bytes()
     except OSError as error:
         raise CheckpointError(f"cannot read checkpoint {path}: {error.strerror}") from None
-    tag, body = data[:_TAG_BYTES], data[_TAG_BYTES:]
-    if len(data) <= _TAG_BYTES or not hmac.compare_digest(tag, hmac.new(_key(), body, hashlib.sha256).digest()):
-        raise CheckpointError(
-            f"checkpoint {path} is corrupt or was not written by this machine's runs (HMAC mismatch): "
-            "delete it to resume from an earlier one, or set LIFELONG_EVO_KEY to the key of the machine that wrote it")
+    if not data.startswith(HEADER):
+        if data[_OLD_TAG_BYTES:_OLD_TAG_BYTES + len(_ZIP_START)] == _ZIP_START:
+            raise older_version_error(path)
+        raise CorruptCheckpointError(f"checkpoint {path} is corrupt or truncated (it does not begin as a checkpoint)")
+    digest, body = data[len(HEADER):len(HEADER) + _DIGEST_BYTES], data[len(HEADER) + _DIGEST_BYTES:]
+    if hashlib.sha256(body).digest() != digest:
+        raise CorruptCheckpointError(f"checkpoint {path} is corrupt or truncated (its checksum does not match)")
     try:
-        return torch.load(io.BytesIO(body), weights_only=True)
-    except Exception as error:  # an authenticated file that still fails to load is a bug, not an attack
-        raise CheckpointError(f"checkpoint {path} could not be read: {error}") from None
+        payload = torch.load(io.BytesIO(body), weights_only=True)
+    except Exception as error:  # intact, yet not loadable: torch's first line says why
+        reason = (str(error).strip().splitlines() or [""])[0][:200]
+        raise CheckpointError(f"checkpoint {path} is intact but torch {torch.__version__} cannot load it "
+                              f"({type(error).__name__}: {reason})") from None
+    if not isinstance(payload, dict):
+        raise CheckpointError(f"checkpoint {path} holds a {type(payload).__name__}, not a checkpoint's dict")
+    return payload

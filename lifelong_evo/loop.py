@@ -4,6 +4,7 @@ batched call), regularise, tell, record; checkpoints at intervals and at every t
 from __future__ import annotations
 
 import json
+import sys
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -176,7 +177,7 @@ def _checkpoint_payload(config, optimizer, generator, state) -> dict[str, Any]:
 
 def _save_checkpoint(config, run_dir, optimizer, generator, state) -> None:
     checkpoint.save(run_dir.checkpoint_path(state.generation), _checkpoint_payload(config, optimizer, generator, state))
-    for old in sorted(run_dir.checkpoints.glob("generation-*.pt"))[:-2]:  # keep the last two
+    for old in run_dir.checkpoint_files()[:-2]:  # keep the last two
         old.unlink()
 
 
@@ -187,10 +188,19 @@ def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopSta
     if different:
         raise ResumeError(f"{run_dir.path} was run with other settings ({', '.join(different)} differ): "
                           "resume without changing them, or start a new run with --name")
-    path = run_dir.latest_checkpoint()
-    if path is None:
+    found = run_dir.checkpoint_files()
+    if not found:
+        print(f"note: no checkpoint in {run_dir.checkpoints}: resuming from generation 0", file=sys.stderr)
         return LoopState()
-    payload = checkpoint.load(path)
+    path = found[-1]
+    try:
+        payload = checkpoint.load(path)
+    except checkpoint.CorruptCheckpointError as error:
+        advice = (f"delete it to resume from {found[-2].name}, the checkpoint before it" if len(found) > 1
+                  else "no earlier checkpoint is left: delete it to resume from generation 0")
+        raise checkpoint.CorruptCheckpointError(f"{error}; {advice}") from None
+    if "pickle" in (payload.get("optimizer") or {}):
+        raise checkpoint.older_version_error(path)
     if _outcome_settings(payload.get("config") or {}) != mine:
         raise ResumeError(f"checkpoint {path} belongs to another configuration: delete it or start a new run")
     optimizer.load_state_dict(payload["optimizer"])

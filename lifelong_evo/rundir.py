@@ -5,7 +5,7 @@
 ``runs/<name>/species.csv``   NEAT only: generation, species_id, size (one row per species alive)
 ``runs/<name>/summary.json``  the paper's table values and the continual-learning metrics
 ``runs/<name>/recording.rrd`` the Rerun recording
-``runs/<name>/checkpoints/``  authenticated checkpoints (see ``lifelong_evo.checkpoint``)
+``runs/<name>/checkpoints/``  the last two checkpoints (see ``lifelong_evo.checkpoint``)
 ``runs/<name>/controllers/``  exported controllers (JSON: neat-python genomes or MLP parameters)
 """
 from __future__ import annotations
@@ -77,8 +77,12 @@ class RunDir:
         self.checkpoints.mkdir(parents=True, exist_ok=True)
         self.controllers.mkdir(parents=True, exist_ok=True)
 
+    def checkpoint_files(self) -> list[Path]:
+        """The checkpoints, oldest first."""
+        return sorted(self.checkpoints.glob("generation-*.pt"))
+
     def latest_checkpoint(self) -> Path | None:
-        found = sorted(self.checkpoints.glob("generation-*.pt"))
+        found = self.checkpoint_files()
         return found[-1] if found else None
 
     def checkpoint_path(self, generation: int) -> Path:

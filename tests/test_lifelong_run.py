@@ -3,6 +3,7 @@ determinism and resume after SIGKILL."""
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
 import random
@@ -192,16 +193,94 @@ def test_existing_run_needs_resume_or_overwrite(smoke_runs, capsys):
     assert (smoke_runs / "neat/metrics.csv").read_text() == before
 
 
-def test_corrupt_checkpoint_is_refused(smoke_runs, tmp_path, capsys):
-    run = tmp_path / "copy"
+def _copy(smoke_runs, tmp_path, name="copy") -> Path:
+    run = tmp_path / name
     shutil.copytree(smoke_runs / "neat", run)
-    latest = sorted(run.glob("checkpoints/*.pt"))[-1]
+    return run
+
+
+def _same_numbers(run: Path, original: Path) -> None:
+    for name in ("metrics.csv", "species.csv", "controllers/final-top.json", "controllers/task0-red-top.json"):
+        assert (run / name).read_text() == (original / name).read_text(), name
+
+
+def test_corrupt_checkpoint_names_the_earlier_one(smoke_runs, tmp_path, capsys):
+    """A damaged checkpoint is refused in one line that names the earlier checkpoint, and doing
+    what it says resumes with the same numbers."""
+    run = _copy(smoke_runs, tmp_path)
+    before = (run / "metrics.csv").read_text()
+    earlier, latest = sorted(run.glob("checkpoints/*.pt"))
     data = bytearray(latest.read_bytes())
-    data[len(data) // 2] ^= 0xFF
+    data[len(data) // 2] ^= 0x01
     latest.write_bytes(bytes(data))
-    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record"]) == 2
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 2
     err = capsys.readouterr().err
-    assert "corrupt or was not written by this machine" in err
+    assert err == (f"error: checkpoint {latest} is corrupt or truncated (its checksum does not match); "
+                   f"delete it to resume from {earlier.name}, the checkpoint before it\n")
+    assert (run / "metrics.csv").read_text() == before
+    latest.unlink()
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 0
+    _same_numbers(run, smoke_runs / "neat")
+
+
+def test_truncated_last_checkpoint_then_none(smoke_runs, tmp_path, capsys):
+    """The only checkpoint cut short: refused, with the advice to delete it; with none left,
+    --resume says it starts from generation 0, and does, to the same numbers."""
+    run = _copy(smoke_runs, tmp_path)
+    earlier, latest = sorted(run.glob("checkpoints/*.pt"))
+    latest.unlink()
+    earlier.write_bytes(earlier.read_bytes()[:-1000])
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 2
+    assert capsys.readouterr().err == (
+        f"error: checkpoint {earlier} is corrupt or truncated (its checksum does not match); "
+        "no earlier checkpoint is left: delete it to resume from generation 0\n")
+    earlier.unlink()
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert err == f"note: no checkpoint in {run / 'checkpoints'}: resuming from generation 0\n"
+    _same_numbers(run, smoke_runs / "neat")
+
+
+@pytest.mark.parametrize("signed", [True, False])
+def test_checkpoint_of_the_older_signed_format_is_refused(smoke_runs, tmp_path, capsys, signed):
+    """Checkpoints of the version that pickled NEAT's state behind an HMAC tag: one line that says
+    so and how to go on, nothing changed."""
+    from lifelong_evo import checkpoint
+
+    run = _copy(smoke_runs, tmp_path)
+    latest = sorted(run.glob("checkpoints/*.pt"))[-1]
+    payload = checkpoint.load(latest)
+    old_state = {k: v for k, v in payload["optimizer"].items() if k != "state"}
+    payload["optimizer"] = {**old_state, "format": "lifelong-evo/neat/1", "pickle": b"\x80\x05N."}
+    if signed:
+        buffer = io.BytesIO()
+        torch.save(payload, buffer)
+        latest.write_bytes(os.urandom(32) + buffer.getvalue())
+    else:
+        checkpoint.save(latest, payload)
+    before = (run / "metrics.csv").read_text()
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 2
+    assert capsys.readouterr().err == (
+        f"error: checkpoint {latest} was written by an older version of lifelong-evo (signed, with pickled NEAT "
+        "state), which this version does not read: start the run again with --overwrite, or finish it with the "
+        "older version\n")
+    assert (run / "metrics.csv").read_text() == before
+
+
+def test_copied_run_resumes_under_another_home(smoke_runs, tmp_path):
+    """A run directory copied to another place resumes in a process with another HOME (another
+    machine, a Ray trial retried on another node) to the numbers of the uninterrupted run,
+    and writes nothing of its own there (no key)."""
+    run = _copy(smoke_runs, tmp_path / "elsewhere", "moved")
+    sorted(run.glob("checkpoints/*.pt"))[-1].unlink()
+    home = tmp_path / "home"
+    home.mkdir()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("LIFELONG_EVO")}
+    env.update(HOME=str(home), XDG_CONFIG_HOME=str(home / ".config"), PYTHONPATH=str(ROOT))
+    subprocess.run(_cli("--resume", "--out", str(run.parent), "--name", "moved", "--no-record", "--quiet"),
+                   check=True, env=env, cwd=tmp_path)
+    _same_numbers(run, smoke_runs / "neat")
+    assert not list(home.rglob("*lifelong*"))
 
 
 def test_resume_of_a_copy_without_controllers(smoke_runs, tmp_path):

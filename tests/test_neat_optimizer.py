@@ -1,14 +1,17 @@
 """NeatOptimizer: the paper's configuration, determinism, the regulariser, checkpoints."""
 from __future__ import annotations
 
+import io
 import json
-import pickle
+import math
 import random
+import struct
 
 import neat
 import pytest
 import torch
 
+from algorithms import neat_state
 from algorithms.base import GenerationReport
 from algorithms.neat_network import Reproduction, build_neat_config
 from algorithms.neat_optimizer import NeatOptimizer
@@ -266,8 +269,10 @@ def test_state_dict_round_trip_continues_identically():
     a.end_task()
     _generation(a, obs)
     a.ask()
-    state = pickle.loads(pickle.dumps(a.state_dict()))  # as a checkpoint file would
-    assert isinstance(state["pickle"], bytes)
+    buffer = io.BytesIO()
+    torch.save(a.state_dict(), buffer)
+    state = torch.load(io.BytesIO(buffer.getvalue()), weights_only=True)  # as a checkpoint file is
+    assert isinstance(state["state"], str)
     assert a.state_dict()["generation"] == 3  # saving twice changes nothing either
 
     b = NeatOptimizer(obs_dim=41, population_size=POP, seed=1234, regularization=1.5)
@@ -292,6 +297,134 @@ def test_state_dict_round_trip_continues_identically():
 
     with pytest.raises(ValueError):
         NeatOptimizer(obs_dim=61, population_size=POP, seed=0).load_state_dict(state)
+
+
+def _same_state(a, b, pairs: dict) -> None:
+    """``a`` and ``b`` are equal down to every float's bits and every dict's order, and an object
+    met twice in ``a`` is one object in ``b`` too (``pairs``: id in ``a`` -> object in ``b``)."""
+    assert type(a) is type(b), (a, b)
+    if isinstance(a, float):
+        assert struct.pack("<d", a) == struct.pack("<d", b), (a, b)
+    elif isinstance(a, (list, tuple)):
+        assert len(a) == len(b)
+        for x, y in zip(a, b):
+            _same_state(x, y, pairs)
+    elif isinstance(a, dict):
+        assert list(a) == list(b)
+        for key in a:
+            _same_state(a[key], b[key], pairs)
+    elif a is None or isinstance(a, (bool, int, str)):
+        assert a == b
+    elif id(a) in pairs:
+        assert pairs[id(a)] is b
+    else:
+        assert all(other is not b for other in pairs.values()), "two objects became one"
+        pairs[id(a)] = b
+        _same_state(vars(a), vars(b), pairs)
+
+
+def _neat_state(opt):
+    gc = opt.config.genome_config
+    return (opt.population, opt.species.species, opt.species.genome_to_species, opt.reproduction.ancestors,
+            opt.reproduction.innovation_tracker, gc.innovation_tracker, opt.best_genome, opt.task_best,
+            opt.reference_genomes, opt._random_state, opt.asked_genomes, opt.generation,
+            [next(c) for c in (opt.species.indexer, opt.reproduction.genome_indexer, gc.node_indexer)])
+
+
+def _through_a_file(state):
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
+    return torch.load(io.BytesIO(buffer.getvalue()), weights_only=True)
+
+
+def test_state_round_trip_keeps_every_object_shared_and_every_bit():
+    obs = _obs(POP, seed=5)
+    a = NeatOptimizer(obs_dim=41, population_size=POP, seed=11, regularization=0.5)
+    for step in range(5):
+        _generation(a, obs)
+        if step in (1, 3):
+            a.end_task()
+    a.ask()
+    # what makes sharing matter: genomes that are the same object in several places
+    assert a.task_best is a.population.get(a.task_best.key)
+    assert any(r is a.population.get(r.key) for r in a.reference_genomes)
+    assert a.reproduction.innovation_tracker is a.config.genome_config.innovation_tracker
+    assert a._random_state[2] is not None  # the Gaussian's spare draw, a float
+    a.best_genome.fitness = -0.0  # bits a float's text could lose
+    a.reference_genomes[0].raw_fitness = 5e-324
+    state = _through_a_file(a.state_dict())
+
+    b = NeatOptimizer(obs_dim=41, population_size=POP, seed=99, regularization=0.5)
+    b.load_state_dict(state)
+    _same_state(_neat_state(a), _neat_state(b), {})
+
+
+class _Node(neat.DefaultNodeGene):
+    pass
+
+
+class _Connection(neat.DefaultConnectionGene):
+    def __init__(self, key, innovation=None):
+        super().__init__(key, innovation)
+        self.origin = ("subclass", 1.5)
+
+
+class _Genome(neat.DefaultGenome):
+    def __init__(self, key):
+        super().__init__(key)
+        self.lineage = [key]
+
+
+def _subclassed_config(num_inputs, pop_size):
+    config = build_neat_config(num_inputs, pop_size)
+    config.genome_type = _Genome
+    config.genome_config.node_gene_type = _Node
+    config.genome_config.connection_gene_type = _Connection
+    return config
+
+
+def test_state_of_subclassed_genomes_and_genes(monkeypatch):
+    """Genome and gene subclasses (another genetics) are rebuilt as the configuration's classes,
+    with the attributes they add."""
+    monkeypatch.setattr("algorithms.neat_optimizer.build_neat_config", _subclassed_config)
+    obs = _obs(POP, seed=6)
+    a = NeatOptimizer(obs_dim=41, population_size=POP, seed=12)
+    for _ in range(2):
+        _generation(a, obs)
+    a.ask()
+    b = NeatOptimizer(obs_dim=41, population_size=POP, seed=13)
+    b.load_state_dict(_through_a_file(a.state_dict()))
+    genome = next(iter(b.population.values()))
+    assert type(genome) is _Genome and genome.lineage == [genome.key]
+    assert {type(n) for n in genome.nodes.values()} == {_Node}
+    assert {type(c) for c in genome.connections.values()} == {_Connection}
+    assert next(iter(genome.connections.values())).origin == ("subclass", 1.5)
+    _same_state(_neat_state(a), _neat_state(b), {})
+    for _ in range(2):
+        ra, _, _ = _generation(a, obs)
+        rb, _, _ = _generation(b, obs)
+        assert torch.equal(ra, rb) and _population(a) == _population(b)
+
+
+def test_state_refuses_what_it_cannot_store():
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=14)
+    genome = next(iter(opt.population.values()))
+    genome.tags = {"a set"}
+    with pytest.raises(TypeError, match=r"builtins.set \(in genome.tags\)"):
+        opt.state_dict()
+    del genome.tags
+    opt.reproduction.cache = {}
+    with pytest.raises(TypeError, match="reproduction Reproduction has state a NEAT checkpoint does not store: cache"):
+        opt.state_dict()
+
+
+@pytest.mark.parametrize("value", [0.1, -0.0, 5e-324, 1.7976931348623157e308, math.inf, -math.inf, math.nan])
+def test_neat_state_floats_keep_their_bits(value):
+    text = neat_state.dumps({"x": [value, (value,), {value: value}]}, {})
+    json.loads(text, parse_constant=lambda name: pytest.fail(f"non-standard JSON {name}"))
+    back = neat_state.loads(text, {})["x"]
+    for got in (back[0], back[1][0], *back[2].values()):
+        assert struct.pack("<d", got) == struct.pack("<d", value)
 
 
 def test_export_is_json():
