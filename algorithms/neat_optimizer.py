@@ -1,12 +1,14 @@
-"""NEAT (neat-python 2.0) behind the ask/tell interface, with the paper's genetic-distance
+"""NEAT on neat-python 2.0 behind the ask/tell interface, with the paper's genetic-distance
 regulariser.
 
 One ``tell`` is one generation of neat-python's ``Population.run`` without the reporters:
 best-genome tracking on ``genome.fitness`` (the selection fitness), ``reproduce``,
-complete-extinction handling, ``speciate``, ``generation += 1``. The components are neat-python's
-own (``DefaultReproduction``, with a fix of its spawn-count adjustment: ``neat_network.Reproduction``;
-``DefaultSpeciesSet``, ``DefaultStagnation``) with the paper's
-configuration (``neat_config.ini``, built per optimiser by ``build_neat_config``).
+complete-extinction handling, ``speciate``, ``generation += 1``. ``genetics`` picks the genome,
+reproduction, species set and stagnation (``neat_network.neat_components``): ``"0.92"`` (the
+default, the paper's) reproduces neat-python 0.92's (``algorithms.neat_genetics``; the population
+size then drifts by a few genomes around ``population_size``), ``"2.0"`` uses neat-python 2.0's
+own (with a fix of its spawn-count adjustment: ``neat_network.Reproduction``). Both run the
+paper's configuration (``neat_config.ini``, built per optimiser by ``build_neat_config``).
 
 Randomness: neat-python draws from the global ``random`` module. The optimiser keeps its own
 ``random`` state, seeded from ``seed``, and swaps it into the global module only while
@@ -31,6 +33,7 @@ from neat.export import export_network_json
 from neat.reporting import ReporterSet
 
 from .base import GenerationReport, Optimizer
+from .neat_genetics import DEFAULT_GENETICS, check_genetics
 from .neat_network import (
     NEAT_SIGMOID_SLOPE,
     UNCONNECTED_OUTPUTS_MODES,
@@ -59,7 +62,8 @@ class NeatOptimizer(Optimizer):
     ``references``: the regulariser's penalty is the mean distance to the last ``references``
     task references. ``unconnected_outputs``: how the batched networks treat nodes without
     enabled inputs (``"zero"``: neat-python 0.92 and the paper; ``"bias"``: neat-python 2.0),
-    see ``algorithms.neat_network``.
+    see ``algorithms.neat_network``. ``genetics``: ``"0.92"`` (the paper's) or ``"2.0"``, see
+    the module docstring.
     """
 
     name = "neat"
@@ -67,7 +71,9 @@ class NeatOptimizer(Optimizer):
 
     def __init__(self, *, obs_dim: int, population_size: int, seed: int,
                  regularization: float = 0.0, device: str | torch.device = "cpu",
-                 references: int = 1, unconnected_outputs: str = "zero"):
+                 references: int = 1, unconnected_outputs: str = "zero",
+                 genetics: str = DEFAULT_GENETICS):
+        self.genetics = check_genetics(genetics)
         if unconnected_outputs not in UNCONNECTED_OUTPUTS_MODES:
             raise ValueError(f"unconnected_outputs must be one of {UNCONNECTED_OUTPUTS_MODES}, "
                              f"got {unconnected_outputs!r}")
@@ -81,7 +87,7 @@ class NeatOptimizer(Optimizer):
         self.references = int(references)
         self.unconnected_outputs = unconnected_outputs
         self.device = torch.device(device)
-        self.config = build_neat_config(self.obs_dim, int(population_size))
+        self.config = build_neat_config(self.obs_dim, int(population_size), genetics=self.genetics)
 
         self._random_state = random.Random(self.seed).getstate()
         reporters = ReporterSet()
@@ -125,7 +131,9 @@ class NeatOptimizer(Optimizer):
 
     @property
     def population_size(self) -> int:
-        return self.config.pop_size
+        """Genomes in the current population: ``pop_size`` under genetics 2.0, within a few of
+        it under 0.92."""
+        return len(self.population)
 
     @property
     def genome_config(self):
@@ -240,7 +248,8 @@ class NeatOptimizer(Optimizer):
         return {
             "format": STATE_FORMAT,
             "obs_dim": self.obs_dim,
-            "population_size": self.population_size,
+            "population_size": self.config.pop_size,
+            "genetics": self.genetics,
             "unconnected_outputs": self.unconnected_outputs,
             "generation": self.generation,
             "neat_version": getattr(neat, "__version__", "unknown"),
@@ -250,9 +259,12 @@ class NeatOptimizer(Optimizer):
     def load_state_dict(self, state: dict[str, Any]) -> None:
         if state.get("format") != STATE_FORMAT:
             raise ValueError(f"not a NEAT optimiser state (format {state.get('format')!r})")
-        for key in ("obs_dim", "population_size"):
-            if state[key] != getattr(self, key):
-                raise ValueError(f"state has {key}={state[key]}, this optimiser {getattr(self, key)}")
+        stored = {"obs_dim": state["obs_dim"], "population_size": state["population_size"],
+                  "genetics": state.get("genetics", "2.0")}  # states from before the option: 2.0's
+        mine = {"obs_dim": self.obs_dim, "population_size": self.config.pop_size, "genetics": self.genetics}
+        for key, value in mine.items():
+            if stored[key] != value:
+                raise ValueError(f"state has {key}={stored[key]!r}, this optimiser {value!r}")
         data = pickle.loads(state["pickle"])
         self.population = data["population"]
         self.species.species = data["species"]
