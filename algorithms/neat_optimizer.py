@@ -10,6 +10,11 @@ size then drifts by a few genomes around ``population_size``), ``"2.0"`` uses ne
 own (with a fix of its spawn-count adjustment: ``neat_network.Reproduction``). Both run the
 paper's configuration (``neat_config.ini``, built per optimiser by ``build_neat_config``).
 
+Per generation ``tell`` reports the ``diagnostics`` in ``GenerationReport.extra``: the mean and
+standard deviation over the evaluated genomes of the regulariser's distance to the references
+(NaN before the first ``end_task``; computed once per generation, shared with ``regularise``),
+and the mean fraction of disabled connections per genome.
+
 Randomness: neat-python draws from the global ``random`` module. The optimiser keeps its own
 ``random`` state, seeded from ``seed``, and swaps it into the global module only while
 neat-python runs (construction and ``tell``), restoring the caller's state afterwards. So a
@@ -68,6 +73,7 @@ class NeatOptimizer(Optimizer):
 
     name = "neat"
     has_regularizer = True
+    diagnostics = ("distance_mean", "distance_std", "disabled_fraction")
 
     def __init__(self, *, obs_dim: int, population_size: int, seed: int,
                  regularization: float = 0.0, device: str | torch.device = "cpu",
@@ -114,6 +120,7 @@ class NeatOptimizer(Optimizer):
         """One reference per finished task (``end_task``), oldest first."""
         self._asked: list | None = None
         self._policy: CompiledPopulation | None = None
+        self._distances: torch.Tensor | None = None
 
     # ---------------------------------------------------------------------------- randomness
 
@@ -166,13 +173,16 @@ class NeatOptimizer(Optimizer):
 
     def distances_to_references(self) -> torch.Tensor | None:
         """Mean neat-python distance of each asked genome to the last ``references`` task
-        references (float64, ``(population,)``), or ``None`` before the first ``end_task``."""
+        references (float64, ``(population,)``), or ``None`` before the first ``end_task``.
+        Computed once per asked population and set of references."""
         if not self.reference_genomes:
             return None
-        refs = self.reference_genomes[-self.references:]
-        gc = self.config.genome_config
-        return torch.tensor([sum(r.distance(g, gc) for r in refs) / len(refs)
-                             for g in self.asked_genomes], dtype=torch.float64)
+        if self._distances is None:
+            refs = self.reference_genomes[-self.references:]
+            gc = self.config.genome_config
+            self._distances = torch.tensor([sum(r.distance(g, gc) for r in refs) / len(refs)
+                                            for g in self.asked_genomes], dtype=torch.float64)
+        return self._distances
 
     def regularise(self, fitness: torch.Tensor) -> torch.Tensor:
         """``fitness - regularization * mean distance to the references``; ``fitness`` itself
@@ -189,6 +199,7 @@ class NeatOptimizer(Optimizer):
         for genome, r, s in zip(genomes, raw, selection):
             genome.raw_fitness = r
             genome.fitness = s
+        diagnostics = self._diagnostics(genomes)
         species_sizes = {int(sid): len(s.members)
                          for sid, s in sorted(self.species.species.items())}
 
@@ -216,13 +227,25 @@ class NeatOptimizer(Optimizer):
         self.generation += 1
         self._asked = None
         self._policy = None
-        return GenerationReport(species_sizes=species_sizes, extra={})
+        self._distances = None
+        return GenerationReport(species_sizes=species_sizes, extra=diagnostics)
+
+    def _diagnostics(self, genomes: list) -> dict[str, float]:
+        """The ``diagnostics`` of the evaluated ``genomes`` (the module docstring); a genome
+        without connections has no disabled ones."""
+        distances = self.distances_to_references()
+        disabled = [sum(not c.enabled for c in g.connections.values()) / len(g.connections)
+                    if g.connections else 0.0 for g in genomes]
+        return {"distance_mean": math.nan if distances is None else distances.mean().item(),
+                "distance_std": math.nan if distances is None else distances.std(unbiased=False).item(),
+                "disabled_fraction": sum(disabled) / len(disabled)}
 
     def end_task(self) -> None:
         """The best genome of the task (by selection fitness) becomes a reference."""
         if self.task_best is not None:
             self.reference_genomes.append(self.task_best)
         self.task_best = None
+        self._distances = None
 
     # ---------------------------------------------------------------------------- state
 
@@ -284,6 +307,7 @@ class NeatOptimizer(Optimizer):
         keys = data["asked_keys"]
         self._asked = None if keys is None else [self.population[k] for k in keys]
         self._policy = None
+        self._distances = None
         if self._asked is not None:  # ask() again gives the same genomes in the same order
             self._policy = compile_genomes(self._asked, self.config, self.device,
                                            unconnected_outputs=self.unconnected_outputs)

@@ -107,6 +107,7 @@ def test_metrics_are_consistent(smoke_runs, name):
     assert summary["BWT_pop"] == pytest.approx(sum(matrix[2][j] - matrix[j][j] for j in range(2)) / 2)
     if name == "openai-es":
         assert all(r["centre"] != "" for r in rows)
+        assert not {"distance_mean", "distance_std", "disabled_fraction"} & set(rows[0])
     else:
         species = _rows(run / "species.csv")
         for row in rows:
@@ -115,6 +116,14 @@ def test_metrics_are_consistent(smoke_runs, name):
             size = sum(int(s["size"]) for s in alive)
             # neat-python 0.92's genetics let the population size drift by a few
             assert size == 20 if name == "neat-genetics-2.0" or row["generation"] == "0" else abs(size - 20) <= 5
+            # the distance to the references exists from the first drift on
+            assert (row["distance_mean"] == "") == (int(row["task_index"]) == 0)
+            assert (row["distance_std"] == "") == (int(row["task_index"]) == 0)
+            if row["distance_mean"]:
+                assert float(row["distance_mean"]) > 0 and float(row["distance_std"]) >= 0
+                assert float(row["mean"]) - float(row["reg_mean"]) == pytest.approx(
+                    2 * float(row["distance_mean"]), rel=1e-4)  # lambda = 2; fitness is float32
+            assert 0 <= float(row["disabled_fraction"]) < 1
 
 
 def test_the_top_individual_is_the_best_by_selection_fitness():

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import math
 import pickle
 import random
 
@@ -165,7 +166,8 @@ def test_ask_tell_report_and_errors(genetics):
         assert list(policy.genome_keys) == sorted(opt.population)
         evaluated = {sid: len(s.members) for sid, s in opt.species.species.items()}
         raw, selection, report = _generation(opt, _obs())
-        assert isinstance(report, GenerationReport) and report.extra == {}
+        assert isinstance(report, GenerationReport)
+        assert report.extra.keys() == set(opt.diagnostics)
         assert report.species_sizes == evaluated
         assert sum(report.species_sizes.values()) == policy.population_size
         if genetics == "2.0":
@@ -276,6 +278,49 @@ def test_penalty_averages_the_last_references(genetics):
 
 
 @pytest.mark.parametrize("genetics", GENETICS)
+@pytest.mark.parametrize("regularization", [0.0, 2.0])
+def test_diagnostics(genetics, regularization, monkeypatch):
+    """Per generation: the mean and standard deviation of the regulariser's distance (NaN before
+    the first task end), computed once whether the regulariser is on or not, and the mean
+    fraction of disabled connections per genome."""
+    obs = _obs(seed=5)
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=13, regularization=regularization,
+                        genetics=genetics)
+    for _ in range(3):
+        _raw, _selection, report = _generation(opt, obs)
+        assert math.isnan(report.extra["distance_mean"]) and math.isnan(report.extra["distance_std"])
+    opt.end_task()
+    _generation(opt, obs)
+    opt.end_task()
+
+    opt.ask()
+    genomes = list(opt.asked_genomes)
+    gc = opt.config.genome_config
+    distances = torch.tensor([sum(r.distance(g, gc) for r in opt.reference_genomes[-1:]) for g in genomes],
+                             dtype=torch.float64)
+    disabled = [sum(not c.enabled for c in g.connections.values()) / len(g.connections) for g in genomes]
+    assert 0 < sum(disabled)
+    counting, calls = [True], [0]
+    distance, reproduce = opt.config.genome_type.distance, opt.reproduction.reproduce
+
+    def counted(self, other, config):
+        calls[0] += counting[0]
+        return distance(self, other, config)
+
+    def reproduce_without_counting(*args):  # speciation computes distances of its own
+        counting[0] = False
+        return reproduce(*args)
+
+    monkeypatch.setattr(opt.config.genome_type, "distance", counted)
+    monkeypatch.setattr(opt.reproduction, "reproduce", reproduce_without_counting)
+    _raw, _selection, report = _generation(opt, obs)
+    assert calls[0] == len(genomes)
+    assert report.extra["distance_mean"] == pytest.approx(distances.mean().item(), rel=1e-12)
+    assert report.extra["distance_std"] == pytest.approx(distances.std(unbiased=False).item(), rel=1e-12)
+    assert report.extra["disabled_fraction"] == pytest.approx(sum(disabled) / len(disabled), rel=1e-12)
+
+
+@pytest.mark.parametrize("genetics", GENETICS)
 def test_state_dict_round_trip_continues_identically(genetics):
     obs = _obs(seed=3)
     a = NeatOptimizer(obs_dim=41, population_size=POP, seed=9, regularization=1.5, genetics=genetics)
@@ -304,6 +349,7 @@ def test_state_dict_round_trip_continues_identically(genetics):
         rb, sb, rep_b = _generation(b, obs)
         assert torch.equal(ra, rb) and torch.equal(sa, sb)
         assert rep_a.species_sizes == rep_b.species_sizes
+        assert json.dumps(rep_a.extra) == json.dumps(rep_b.extra)
         assert _population(a) == _population(b)
     ia = a.reproduction.innovation_tracker.global_counter
     assert ia == b.reproduction.innovation_tracker.global_counter
