@@ -46,7 +46,8 @@ class GenerationReport:
     species_sizes: dict[int, int] | None = None
     """NEAT species id -> member count; ``None`` for algorithms without species."""
     extra: dict[str, float] = field(default_factory=dict)
-    """Algorithm-specific scalars (for example the ES step size), logged as they are."""
+    """Algorithm-specific scalars (for example the ES step size), logged as they are; those
+    named in the optimiser's ``diagnostics`` also go to metrics.csv."""
 
 
 class Optimizer(ABC):
@@ -59,6 +60,10 @@ class Optimizer(ABC):
 
     centre_index: int | None = None
     """Index of the search distribution's centre among the controllers (ES), else ``None``."""
+
+    diagnostics: ClassVar[tuple[str, ...]] = ()
+    """Names of scalars every ``tell`` reports in ``GenerationReport.extra``, written to
+    metrics.csv as columns of their own (NaN, written empty, where a value does not exist yet)."""
 
     @property
     @abstractmethod

@@ -34,8 +34,10 @@ Layout
 ------
 Hidden nodes are grouped by depth (1 + the deepest hidden source; 1 for nodes fed by inputs
 only, or by nothing) and padded per depth to the generation's largest count, so that each
-depth is a contiguous block of slots; outputs are sinks in neat-python (no connection leaves an
-output), so they are computed last, in slots of their own. ``slope * response`` is folded into
+depth is a contiguous block of slots; outputs are computed last, in slots of their own. Under
+neat-python 2.0's genetics outputs are sinks; under 0.92's an output may feed hidden nodes (never
+another output): such an output also gets a hidden slot at its depth, computed from the same
+weights and bias, which its targets read. ``slope * response`` is folded into
 the weights and ``slope * bias`` into the bias. Padding slots have zero weights in and out.
 Nothing is capped: the padding follows the largest genome of the generation. One call costs
 one batched matmul for the inputs plus one small batched matmul per hidden depth beyond the
@@ -54,6 +56,15 @@ from typing import Literal, Mapping, Sequence
 import neat
 import torch
 from neat.graphs import feed_forward_layers, required_for_output
+
+from .neat_genetics import (
+    DEFAULT_GENETICS,
+    Neat092Genome,
+    Neat092Reproduction,
+    Neat092SpeciesSet,
+    Neat092Stagnation,
+    check_genetics,
+)
 
 UnconnectedOutputs = Literal["zero", "bias"]
 UNCONNECTED_OUTPUTS_MODES: tuple[str, ...] = ("zero", "bias")
@@ -105,13 +116,28 @@ class Reproduction(neat.DefaultReproduction):
         return spawn_amounts
 
 
-def build_neat_config(num_inputs: int, pop_size: int = 300,
-                      overrides: Mapping[str, Mapping[str, object]] | None = None) -> neat.Config:
-    """A fresh ``neat.Config`` with the paper's values, ``num_inputs`` inputs and ``pop_size``.
+_SECTIONS = ("DefaultGenome", "DefaultReproduction", "DefaultSpeciesSet", "DefaultStagnation")
+"""The sections of ``neat_config.ini``, in the order of ``neat_components``."""
 
-    ``overrides`` maps section name to ``{option: value}`` and replaces further values (tests use
-    it for high mutation rates). Build one per optimiser: the config carries mutable counters
-    (the node indexer, and the innovation tracker once reproduction sets it).
+
+def neat_components(genetics: str = DEFAULT_GENETICS) -> tuple[type, type, type, type]:
+    """The genome, reproduction, species-set and stagnation classes of ``genetics`` (see
+    ``algorithms.neat_genetics``): neat-python 0.92's, or 2.0's own with the spawn-count fix."""
+    if check_genetics(genetics) == "0.92":
+        return Neat092Genome, Neat092Reproduction, Neat092SpeciesSet, Neat092Stagnation
+    return neat.DefaultGenome, Reproduction, neat.DefaultSpeciesSet, neat.DefaultStagnation
+
+
+def build_neat_config(num_inputs: int, pop_size: int = 300,
+                      overrides: Mapping[str, Mapping[str, object]] | None = None,
+                      genetics: str = DEFAULT_GENETICS) -> neat.Config:
+    """A fresh ``neat.Config`` with the paper's values, ``num_inputs`` inputs and ``pop_size``,
+    and the components of ``genetics`` (``neat_components``).
+
+    ``overrides`` maps section name (as in ``neat_config.ini``) to ``{option: value}`` and
+    replaces further values (tests use it for high mutation rates). Build one per optimiser: the
+    config carries mutable counters (the node indexer, and the innovation tracker once
+    reproduction sets it).
     """
     if int(num_inputs) < 1:
         raise ValueError(f"num_inputs must be >= 1, got {num_inputs}")
@@ -127,15 +153,17 @@ def build_neat_config(num_inputs: int, pop_size: int = 300,
             if not parser.has_option(section, key):
                 raise KeyError(f"unknown NEAT option [{section}] {key}")
             parser[section][key] = str(value)
+    components = neat_components(genetics)
     # neat-python reads each component's options from the section named after its class
-    parser[Reproduction.__name__] = dict(parser["DefaultReproduction"])
-    parser.remove_section("DefaultReproduction")
+    for section, component in zip(_SECTIONS, components):
+        if section != component.__name__:
+            parser[component.__name__] = dict(parser[section])
+            parser.remove_section(section)
     fd, path = tempfile.mkstemp(prefix="neat-config-", suffix=".ini")
     try:
         with os.fdopen(fd, "w") as f:
             parser.write(f)
-        config = neat.Config(neat.DefaultGenome, Reproduction,
-                             neat.DefaultSpeciesSet, neat.DefaultStagnation, path)
+        config = neat.Config(*components, path)
     finally:
         os.unlink(path)
     config.genome_config.add_activation("neat_sigmoid", neat_sigmoid)
@@ -298,13 +326,14 @@ def compile_genomes(genomes: Sequence, config, device: str | torch.device = "cpu
     output_index = {k: i for i, k in enumerate(genome_config.output_keys)}
     n_in, n_out, P = len(input_index), len(output_index), len(genomes)
 
-    per_genome = []      # (hidden nodes by depth, links, computed outputs)
-    width: list[int] = []  # max hidden nodes per depth (depth 1 at index 0)
+    per_genome = []      # (hidden slots' nodes by depth, links, computed outputs)
+    width: list[int] = []  # max hidden slots per depth (depth 1 at index 0)
     for genome in genomes:
         layers, links = genome_layers(genome, genome_config, unconnected_outputs)
         incoming: dict[int, list[int]] = defaultdict(list)
         for a, b, _w in links:
             incoming[b].append(a)
+        sources = {a for a, _b, _w in links}
         depth: dict[int, int] = {}
         by_depth: dict[int, list[int]] = defaultdict(list)
         outputs = set()
@@ -318,7 +347,8 @@ def compile_genomes(genomes: Sequence, config, device: str | torch.device = "cpu
                         f"{gene.aggregation!r}/{gene.activation!r}")
                 if node in output_index:
                     outputs.add(node)
-                    continue
+                    if node not in sources:
+                        continue
                 d = 1 + max((depth[a] for a in incoming[node] if a not in input_index), default=0)
                 depth[node] = d
                 by_depth[d].append(node)
@@ -344,31 +374,36 @@ def compile_genomes(genomes: Sequence, config, device: str | torch.device = "cpu
     zero_outputs = torch.zeros(P, n_out, dtype=torch.bool)
     depths = torch.zeros(P, dtype=torch.long)
     for g, (genome, (by_depth, links, outputs)) in enumerate(zip(genomes, per_genome)):
-        slot: dict[int, int] = {}
+        hidden_slot: dict[int, int] = {}  # the slot a node's targets read
         for d, nodes in by_depth.items():
             for r, node in enumerate(nodes):
-                slot[node] = offsets[d - 1] + r
+                hidden_slot[node] = offsets[d - 1] + r
+        slots: dict[int, list[int]] = defaultdict(list)  # the slots computing each node
+        for node, s in hidden_slot.items():
+            slots[node].append(s)
         for node in outputs:
-            slot[node] = n_hidden + output_index[node]
+            slots[node].append(n_hidden + output_index[node])
         depths[g] = max(by_depth, default=0)
         for key, i in output_index.items():
             if key not in outputs:  # left at 0.0: sigmoid(-inf) with no incoming weights
                 zero_outputs[g, i] = True
                 bias_idx.append((g, n_hidden + i))
                 bias_val.append(-math.inf)
-        for node, s in slot.items():
+        for node, node_slots in slots.items():
             gene = genome.nodes[node]
-            bias_idx.append((g, s))
-            bias_val.append(_ACTIVATION_SLOPES[gene.activation] * gene.bias)
+            for s in node_slots:
+                bias_idx.append((g, s))
+                bias_val.append(_ACTIVATION_SLOPES[gene.activation] * gene.bias)
         for a, b, weight in links:
             gene = genome.nodes[b]
             v = _ACTIVATION_SLOPES[gene.activation] * gene.response * weight
-            if a in input_index:
-                in_idx.append((g, input_index[a], slot[b]))
-                in_val.append(v)
-            else:
-                hh_idx.append((g, slot[b], slot[a]))
-                hh_val.append(v)
+            for s in slots[b]:
+                if a in input_index:
+                    in_idx.append((g, input_index[a], s))
+                    in_val.append(v)
+                else:
+                    hh_idx.append((g, s, hidden_slot[a]))
+                    hh_val.append(v)
 
     def dense(shape, idx, val):
         t = torch.zeros(shape, dtype=torch.float64)
@@ -392,5 +427,5 @@ def compile_genomes(genomes: Sequence, config, device: str | torch.device = "cpu
         depths=depths, zero_outputs=zero_outputs)
 
 
-__all__ = ["CompiledPopulation", "compile_genomes", "build_neat_config", "neat_config_path",
+__all__ = ["CompiledPopulation", "compile_genomes", "build_neat_config", "neat_components", "neat_config_path",
            "neat_sigmoid", "genome_layers", "NEAT_SIGMOID_SLOPE", "UNCONNECTED_OUTPUTS_MODES"]

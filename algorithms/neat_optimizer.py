@@ -1,12 +1,19 @@
-"""NEAT (neat-python 2.0) behind the ask/tell interface, with the paper's genetic-distance
+"""NEAT on neat-python 2.0 behind the ask/tell interface, with the paper's genetic-distance
 regulariser.
 
 One ``tell`` is one generation of neat-python's ``Population.run`` without the reporters:
 best-genome tracking on ``genome.fitness`` (the selection fitness), ``reproduce``,
-complete-extinction handling, ``speciate``, ``generation += 1``. The components are neat-python's
-own (``DefaultReproduction``, with a fix of its spawn-count adjustment: ``neat_network.Reproduction``;
-``DefaultSpeciesSet``, ``DefaultStagnation``) with the paper's
-configuration (``neat_config.ini``, built per optimiser by ``build_neat_config``).
+complete-extinction handling, ``speciate``, ``generation += 1``. ``genetics`` picks the genome,
+reproduction, species set and stagnation (``neat_network.neat_components``): ``"0.92"`` (the
+default, the paper's) reproduces neat-python 0.92's (``algorithms.neat_genetics``; the population
+size then drifts by a few genomes around ``population_size``), ``"2.0"`` uses neat-python 2.0's
+own (with a fix of its spawn-count adjustment: ``neat_network.Reproduction``). Both run the
+paper's configuration (``neat_config.ini``, built per optimiser by ``build_neat_config``).
+
+Per generation ``tell`` reports the ``diagnostics`` in ``GenerationReport.extra``: the mean and
+standard deviation over the evaluated genomes of the regulariser's distance to the references
+(NaN before the first ``end_task``; computed once per generation, shared with ``regularise``),
+and the mean fraction of disabled connections per genome.
 
 Randomness: neat-python draws from the global ``random`` module. The optimiser keeps its own
 ``random`` state, seeded from ``seed``, and swaps it into the global module only while
@@ -31,6 +38,7 @@ from neat.reporting import ReporterSet
 
 from . import neat_state
 from .base import GenerationReport, Optimizer
+from .neat_genetics import DEFAULT_GENETICS, check_genetics
 from .neat_network import (
     NEAT_SIGMOID_SLOPE,
     UNCONNECTED_OUTPUTS_MODES,
@@ -59,15 +67,19 @@ class NeatOptimizer(Optimizer):
     ``references``: the regulariser's penalty is the mean distance to the last ``references``
     task references. ``unconnected_outputs``: how the batched networks treat nodes without
     enabled inputs (``"zero"``: neat-python 0.92 and the paper; ``"bias"``: neat-python 2.0),
-    see ``algorithms.neat_network``.
+    see ``algorithms.neat_network``. ``genetics``: ``"0.92"`` (the paper's) or ``"2.0"``, see
+    the module docstring.
     """
 
     name = "neat"
     has_regularizer = True
+    diagnostics = ("distance_mean", "distance_std", "disabled_fraction")
 
     def __init__(self, *, obs_dim: int, population_size: int, seed: int,
                  regularization: float = 0.0, device: str | torch.device = "cpu",
-                 references: int = 1, unconnected_outputs: str = "zero"):
+                 references: int = 1, unconnected_outputs: str = "zero",
+                 genetics: str = DEFAULT_GENETICS):
+        self.genetics = check_genetics(genetics)
         if unconnected_outputs not in UNCONNECTED_OUTPUTS_MODES:
             raise ValueError(f"unconnected_outputs must be one of {UNCONNECTED_OUTPUTS_MODES}, "
                              f"got {unconnected_outputs!r}")
@@ -81,7 +93,7 @@ class NeatOptimizer(Optimizer):
         self.references = int(references)
         self.unconnected_outputs = unconnected_outputs
         self.device = torch.device(device)
-        self.config = build_neat_config(self.obs_dim, int(population_size))
+        self.config = build_neat_config(self.obs_dim, int(population_size), genetics=self.genetics)
 
         self._random_state = random.Random(self.seed).getstate()
         reporters = ReporterSet()
@@ -108,6 +120,7 @@ class NeatOptimizer(Optimizer):
         """One reference per finished task (``end_task``), oldest first."""
         self._asked: list | None = None
         self._policy: CompiledPopulation | None = None
+        self._distances: torch.Tensor | None = None
 
     # ---------------------------------------------------------------------------- randomness
 
@@ -125,7 +138,9 @@ class NeatOptimizer(Optimizer):
 
     @property
     def population_size(self) -> int:
-        return self.config.pop_size
+        """Genomes in the current population: ``pop_size`` under genetics 2.0, within a few of
+        it under 0.92."""
+        return len(self.population)
 
     @property
     def genome_config(self):
@@ -158,13 +173,16 @@ class NeatOptimizer(Optimizer):
 
     def distances_to_references(self) -> torch.Tensor | None:
         """Mean neat-python distance of each asked genome to the last ``references`` task
-        references (float64, ``(population,)``), or ``None`` before the first ``end_task``."""
+        references (float64, ``(population,)``), or ``None`` before the first ``end_task``.
+        Computed once per asked population and set of references."""
         if not self.reference_genomes:
             return None
-        refs = self.reference_genomes[-self.references:]
-        gc = self.config.genome_config
-        return torch.tensor([sum(r.distance(g, gc) for r in refs) / len(refs)
-                             for g in self.asked_genomes], dtype=torch.float64)
+        if self._distances is None:
+            refs = self.reference_genomes[-self.references:]
+            gc = self.config.genome_config
+            self._distances = torch.tensor([sum(r.distance(g, gc) for r in refs) / len(refs)
+                                            for g in self.asked_genomes], dtype=torch.float64)
+        return self._distances
 
     def regularise(self, fitness: torch.Tensor) -> torch.Tensor:
         """``fitness - regularization * mean distance to the references``; ``fitness`` itself
@@ -181,6 +199,7 @@ class NeatOptimizer(Optimizer):
         for genome, r, s in zip(genomes, raw, selection):
             genome.raw_fitness = r
             genome.fitness = s
+        diagnostics = self._diagnostics(genomes)
         species_sizes = {int(sid): len(s.members)
                          for sid, s in sorted(self.species.species.items())}
 
@@ -208,13 +227,25 @@ class NeatOptimizer(Optimizer):
         self.generation += 1
         self._asked = None
         self._policy = None
-        return GenerationReport(species_sizes=species_sizes, extra={})
+        self._distances = None
+        return GenerationReport(species_sizes=species_sizes, extra=diagnostics)
+
+    def _diagnostics(self, genomes: list) -> dict[str, float]:
+        """The ``diagnostics`` of the evaluated ``genomes`` (the module docstring); a genome
+        without connections has no disabled ones."""
+        distances = self.distances_to_references()
+        disabled = [sum(not c.enabled for c in g.connections.values()) / len(g.connections)
+                    if g.connections else 0.0 for g in genomes]
+        return {"distance_mean": math.nan if distances is None else distances.mean().item(),
+                "distance_std": math.nan if distances is None else distances.std(unbiased=False).item(),
+                "disabled_fraction": sum(disabled) / len(disabled)}
 
     def end_task(self) -> None:
         """The best genome of the task (by selection fitness) becomes a reference."""
         if self.task_best is not None:
             self.reference_genomes.append(self.task_best)
         self.task_best = None
+        self._distances = None
 
     # ---------------------------------------------------------------------------- state
 
@@ -243,7 +274,8 @@ class NeatOptimizer(Optimizer):
         return {
             "format": STATE_FORMAT,
             "obs_dim": self.obs_dim,
-            "population_size": self.population_size,
+            "population_size": self.config.pop_size,
+            "genetics": self.genetics,
             "unconnected_outputs": self.unconnected_outputs,
             "generation": self.generation,
             "neat_version": getattr(neat, "__version__", "unknown"),
@@ -253,9 +285,12 @@ class NeatOptimizer(Optimizer):
     def load_state_dict(self, state: dict[str, Any]) -> None:
         if state.get("format") != STATE_FORMAT:
             raise ValueError(f"not a NEAT optimiser state (format {state.get('format')!r})")
-        for key in ("obs_dim", "population_size"):
-            if state[key] != getattr(self, key):
-                raise ValueError(f"state has {key}={state[key]}, this optimiser {getattr(self, key)}")
+        stored = {"obs_dim": state["obs_dim"], "population_size": state["population_size"],
+                  "genetics": state["genetics"]}
+        mine = {"obs_dim": self.obs_dim, "population_size": self.config.pop_size, "genetics": self.genetics}
+        for key, value in mine.items():
+            if stored[key] != value:
+                raise ValueError(f"state has {key}={stored[key]!r}, this optimiser {value!r}")
         data = neat_state.loads(state["state"], neat_state.object_types(self.config, self.species, self.reproduction))
         self.population = data["population"]
         self.species.species = data["species"]
@@ -275,6 +310,7 @@ class NeatOptimizer(Optimizer):
         keys = data["asked_keys"]
         self._asked = None if keys is None else [self.population[k] for k in keys]
         self._policy = None
+        self._distances = None
         if self._asked is not None:  # ask() again gives the same genomes in the same order
             self._policy = compile_genomes(self._asked, self.config, self.device,
                                            unconnected_outputs=self.unconnected_outputs)

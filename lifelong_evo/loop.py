@@ -61,7 +61,8 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
         write_json(run_dir.config, {**config.to_dict(), "env_resolved": env_config.to_dict(),
                                     "versions": library_versions()})
     has_centre = optimizer.centre_index is not None
-    columns = metric_columns([t.name for t in tasks], has_species=config.algo == "neat", has_centre=has_centre)
+    columns = metric_columns([t.name for t in tasks], has_species=config.algo == "neat", has_centre=has_centre,
+                             diagnostics=optimizer.diagnostics)
     keep = state.generation if resume else None
     writer = MetricsWriter(run_dir.metrics, columns, keep_generations=keep)
     species_log = MetricsWriter(run_dir.species, SPECIES_COLUMNS, keep_generations=keep) if config.algo == "neat" else None
@@ -109,6 +110,7 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
                     row["species"] = len(report.species_sizes)
                 if has_centre:
                     row["centre"] = raw[optimizer.centre_index].item()
+                row.update({name: report.extra[name] for name in optimizer.diagnostics})
                 for task in earlier:
                     if task.name in scores:
                         row[f"retention_pop_{task.name}"] = scores[task.name]["pop"]

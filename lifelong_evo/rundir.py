@@ -135,8 +135,10 @@ def read_metrics(path: Path) -> list[dict[str, str]]:
     return [row for row in reader if None not in row and all(v is not None for v in row.values())]
 
 
-def metric_columns(task_names: Iterable[str], has_species: bool, has_centre: bool) -> list[str]:
-    """The metrics.csv header of a run: fixed by its schedule and algorithm."""
+def metric_columns(task_names: Iterable[str], has_species: bool, has_centre: bool,
+                   diagnostics: Iterable[str] = ()) -> list[str]:
+    """The metrics.csv header of a run: fixed by its schedule and algorithm (``diagnostics``:
+    the optimiser's, see ``algorithms.base.Optimizer.diagnostics``)."""
     columns = ["task", "task_index", "generation", "generation_in_task"]
     for prefix in ("", "reg_"):
         columns += [f"{prefix}best", f"{prefix}mean", f"{prefix}median", f"{prefix}std"]
@@ -145,6 +147,7 @@ def metric_columns(task_names: Iterable[str], has_species: bool, has_centre: boo
         columns.append("species")
     if has_centre:
         columns.append("centre")
+    columns += diagnostics
     for name in task_names:
         columns += [f"retention_pop_{name}", f"retention_top_{name}"]
         if has_centre:

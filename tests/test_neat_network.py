@@ -16,6 +16,7 @@ import pytest
 import torch
 from neat.innovation import InnovationTracker
 
+from algorithms.neat_genetics import GENETICS
 from algorithms.neat_network import (
     CompiledPopulation,
     _add_weighted,
@@ -111,8 +112,8 @@ class _FeedForwardNetworkV092:
 # genomes and observations
 
 
-def _fresh_config(num_inputs=41, overrides=None, pop_size=300):
-    config = build_neat_config(num_inputs, pop_size, overrides)
+def _fresh_config(num_inputs=41, overrides=None, pop_size=300, genetics="0.92"):
+    config = build_neat_config(num_inputs, pop_size, overrides, genetics=genetics)
     config.genome_config.innovation_tracker = InnovationTracker()
     return config
 
@@ -120,7 +121,7 @@ def _fresh_config(num_inputs=41, overrides=None, pop_size=300):
 def _fresh_genomes(config, n, first_key=1):
     out = []
     for key in range(first_key, first_key + n):
-        g = neat.DefaultGenome(key)
+        g = config.genome_type(key)
         g.configure_new(config.genome_config)
         out.append(g)
     return out
@@ -189,10 +190,11 @@ def _check_parity(genomes, config, mode, seed=0, E=2, A=3, device="cpu"):
 def _stats(genomes, config):
     """How many genomes show each structure the pass has to get right."""
     gc = config.genome_config
-    stats = dict(bias_neuron=0, dead_output=0, disabled=0, deep=0, no_input_output=0)
+    stats = dict(bias_neuron=0, dead_output=0, disabled=0, deep=0, no_input_output=0, output_source=0)
     for g in genomes:
         enabled = [k for k, c in g.connections.items() if c.enabled]
         targets = {b for _a, b in enabled}
+        stats["output_source"] += any(a in gc.output_keys for a, _b in enabled)
         required = neat.graphs.required_for_output(gc.input_keys, gc.output_keys, enabled)
         stats["bias_neuron"] += any(n not in targets for n in required if n not in gc.output_keys)
         stats["no_input_output"] += any(o not in targets for o in gc.output_keys)
@@ -228,7 +230,7 @@ def _hand_genome(config):
     has no enabled input (its input -3 -> 7 is disabled) and by a disabled -4 -> 1; output 2
     has no connection at all."""
     gc = config.genome_config
-    g = neat.DefaultGenome(1)
+    g = config.genome_type(1)
     for key, bias in ((0, 0.1), (1, -0.3), (2, 0.7), (5, -0.2), (7, 0.4)):
         g.nodes[key] = g.create_node(gc, key)
         g.nodes[key].bias = bias
@@ -259,23 +261,61 @@ def test_hand_built_genome_in_both_modes():
         expected["zero"], abs=1e-12)
 
 
-def test_fresh_genomes_match_neat_python():
-    config = _fresh_config()
+def test_output_feeding_a_hidden_node():
+    """neat-python 0.92's genomes may start a connection at an output: output 0 feeds hidden 5,
+    which feeds output 1. With output 0's only input disabled, 0.92 computes neither output 0
+    nor what it feeds; 2.0 makes it a bias neuron."""
+    config = _fresh_config(num_inputs=2)
+    gc = config.genome_config
+    g = config.genome_type(1)
+    for key, bias in ((0, 0.1), (1, 0.3), (2, 0.0), (5, -0.2)):
+        g.nodes[key] = g.create_node(gc, key)
+        g.nodes[key].bias = bias
+    for a, b, w in ((-1, 0, 1.5), (0, 5, -2.0), (-2, 5, 0.5), (5, 1, 1.0), (-2, 2, 0.7)):
+        g.add_connection(gc, a, b, w, True)
+    x = [0.4, -0.9]
+
+    def sig(v):
+        return 1.0 / (1.0 + math.exp(-4.9 * v))
+
+    def expected(out0):
+        return [out0, sig(0.3 + sig(-0.2 - 2.0 * out0 + 0.5 * x[1])), sig(0.7 * x[1])]
+
+    obs = torch.tensor(x).view(1, 1, 1, 2)
+    for mode in ("zero", "bias"):
+        policy = compile_genomes([g], config, unconnected_outputs=mode)
+        assert policy(obs).view(3).tolist() == pytest.approx(expected(sig(0.1 + 1.5 * x[0])), abs=1e-6)
+        assert policy.max_depth == 2
+    g.connections[(-1, 0)].enabled = False
+    want = {"zero": [0.0, 0.0, sig(0.7 * x[1])], "bias": expected(sig(0.1))}
+    for mode, values in want.items():
+        got = compile_genomes([g], config, unconnected_outputs=mode)(obs).view(3).tolist()
+        assert got == pytest.approx(values, abs=1e-6), mode
+    assert neat.nn.FeedForwardNetwork.create(g, config).activate(x) == pytest.approx(want["bias"], abs=1e-12)
+    assert _FeedForwardNetworkV092(g, config).activate(x) == pytest.approx(want["zero"], abs=1e-12)
+
+
+@pytest.mark.parametrize("genetics", GENETICS)
+def test_fresh_genomes_match_neat_python(genetics):
+    config = _fresh_config(genetics=genetics)
     genomes = _fresh_genomes(config, 120)
     for mode in ("zero", "bias"):
         _check_parity(genomes, config, mode)
 
 
-def test_heavily_mutated_genomes_match_neat_python():
+@pytest.mark.parametrize("genetics", GENETICS)
+def test_heavily_mutated_genomes_match_neat_python(genetics):
     random.seed(3)
-    config = _fresh_config(overrides=HEAVY)
-    sparse = _fresh_config(overrides=SPARSE)
+    config = _fresh_config(overrides=HEAVY, genetics=genetics)
+    sparse = _fresh_config(overrides=SPARSE, genetics=genetics)
     sparse.genome_config.innovation_tracker = config.genome_config.innovation_tracker
     genomes = _mutated_genomes(config, 40, 20, 120) + _mutated_genomes(sparse, 40, 0, 60)
     for key, g in enumerate(genomes):
         g.key = key
     stats = _stats(genomes, config)
-    for what, count in stats.items():  # the population exercises every special case
+    # the population exercises every special case (2.0's genomes never start a connection at an output)
+    assert (stats.pop("output_source") >= 3) == (genetics == "0.92")
+    for what, count in stats.items():
         assert count >= 3, (what, stats)
     for mode in ("zero", "bias"):
         policy, obs, got = _check_parity(genomes, config, mode, seed=1, E=4, A=5)
@@ -292,8 +332,9 @@ def test_heavily_mutated_genomes_match_neat_python():
     assert (zero(obs).double() - want).abs().max().item() < 1e-5
 
 
-def test_evolved_genomes_match_neat_python():
-    config = _fresh_config(pop_size=40)
+@pytest.mark.parametrize("genetics", GENETICS)
+def test_evolved_genomes_match_neat_python(genetics):
+    config = _fresh_config(pop_size=40, genetics=genetics)
     genomes = _evolved_genomes(config)
     assert len(genomes) == 160
     for mode in ("zero", "bias"):

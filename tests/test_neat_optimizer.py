@@ -13,6 +13,7 @@ import torch
 
 from algorithms import neat_state
 from algorithms.base import GenerationReport
+from algorithms.neat_genetics import GENETICS, Neat092Genome, Neat092Reproduction
 from algorithms.neat_network import Reproduction, build_neat_config
 from algorithms.neat_optimizer import NeatOptimizer
 
@@ -32,14 +33,15 @@ def _population(opt):
     return [_signature(opt.population[k]) for k in sorted(opt.population)]
 
 
-def _obs(pop, seed=0, n=41):
+def _obs(seed=0, n=41):
+    """Observations for each genome, enough for the population sizes 0.92's drift gives."""
     gen = torch.Generator().manual_seed(seed)
-    return torch.rand(pop, 2, 3, n, generator=gen) * 2 - 1
+    return torch.rand(2 * POP, 2, 3, n, generator=gen) * 2 - 1
 
 
 def _fitness(policy, obs):
     """Deterministic synthetic fitness: a function of each genome's outputs."""
-    out = policy(obs).double()
+    out = policy(obs[:policy.population_size]).double()
     return out[..., 0].sum(dim=(1, 2)) - out[..., 1].sum(dim=(1, 2)) + 0.3 * out[..., 2].mean(dim=(1, 2))
 
 
@@ -59,9 +61,12 @@ def _keep_global_random():
     random.setstate(state)
 
 
-def test_config_is_the_papers_table():
-    opt = NeatOptimizer(obs_dim=41, population_size=300, seed=1)
+@pytest.mark.parametrize("genetics", GENETICS)
+def test_config_is_the_papers_table(genetics):
+    opt = NeatOptimizer(obs_dim=41, population_size=300, seed=1, genetics=genetics)
     c = opt.config
+    assert (c.genome_type, c.reproduction_type) == (
+        (Neat092Genome, Neat092Reproduction) if genetics == "0.92" else (neat.DefaultGenome, Reproduction))
     g = c.genome_config
     assert (c.pop_size, c.fitness_criterion, c.no_fitness_termination) == (300, "max", True)
     assert (g.num_inputs, g.num_outputs, g.num_hidden, g.feed_forward) == (41, 3, 1, True)
@@ -87,7 +92,7 @@ def test_config_is_the_papers_table():
     s = c.stagnation_config
     assert (s.species_fitness_func, s.max_stagnation, s.species_elitism) == ("max", 20, 1)
     r = c.reproduction_config
-    assert (r.elitism, r.survival_threshold) == (5, 0.2)
+    assert (r.elitism, r.survival_threshold, r.min_species_size) == (5, 0.2, 2)
     # the initial population: one hidden node, about half of the possible connections
     assert opt.population_size == 300 and len(opt.population) == 300
     for genome in opt.population.values():
@@ -96,11 +101,15 @@ def test_config_is_the_papers_table():
     assert NeatOptimizer(obs_dim=61, population_size=20, seed=1).config.genome_config.num_inputs == 61
 
 
-def test_same_seed_same_genomes_and_global_random_untouched():
-    obs = _obs(POP)
-    a = NeatOptimizer(obs_dim=41, population_size=POP, seed=3)
-    b = NeatOptimizer(obs_dim=41, population_size=POP, seed=3)
-    c = NeatOptimizer(obs_dim=41, population_size=POP, seed=4)
+@pytest.mark.parametrize("genetics", GENETICS)
+def test_same_seed_same_genomes_and_global_random_untouched(genetics):
+    obs = _obs()
+    a = NeatOptimizer(obs_dim=41, population_size=POP, seed=3, genetics=genetics)
+    b = NeatOptimizer(obs_dim=41, population_size=POP, seed=3, genetics=genetics)
+    c = NeatOptimizer(obs_dim=41, population_size=POP, seed=4, genetics=genetics)
+    other = NeatOptimizer(obs_dim=41, population_size=POP, seed=3,
+                          genetics=next(g for g in GENETICS if g != genetics))
+    assert _population(a) != _population(other)
     assert _population(a) == _population(b) != _population(c)
     for _ in range(3):
         random.seed(12345)
@@ -113,18 +122,21 @@ def test_same_seed_same_genomes_and_global_random_untouched():
     assert a.generation == b.generation == 3
     assert _population(a) == _population(b) != _population(c)
     assert _population(a) != [_signature(g) for g in NeatOptimizer(
-        obs_dim=41, population_size=POP, seed=3).population.values()]  # it did evolve
+        obs_dim=41, population_size=POP, seed=3, genetics=genetics).population.values()]  # it did evolve
 
 
-def test_mirrors_neat_population_run():
-    """Same seed, same fitness: the optimiser's generations are neat-python's own."""
+@pytest.mark.parametrize("genetics", GENETICS)
+def test_mirrors_neat_population_run(genetics):
+    """Same seed, same fitness: the optimiser's generations are those of neat-python's own
+    ``Population.run`` with the same components."""
     probe = [((i * 7) % 5) / 4 - 0.5 for i in range(41)]
 
     def score(genome, config):
         out = neat.nn.FeedForwardNetwork.create(genome, config).activate(probe)
         return out[0] - out[1] + 0.01 * len(genome.connections)
 
-    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=11, unconnected_outputs="bias")
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=11, unconnected_outputs="bias",
+                        genetics=genetics)
     for _ in range(5):
         opt.ask()
         f = torch.tensor([score(g, opt.config) for g in opt.asked_genomes], dtype=torch.float64)
@@ -134,7 +146,7 @@ def test_mirrors_neat_population_run():
         for _key, g in genomes:
             g.fitness = score(g, config)
 
-    reference = neat.Population(build_neat_config(41, POP), seed=11)
+    reference = neat.Population(build_neat_config(41, POP, genetics=genetics), seed=11)
     reference.run(evaluate, 5)
     assert reference.generation == opt.generation == 5
     assert _population(opt) == [_signature(reference.population[k])
@@ -144,27 +156,29 @@ def test_mirrors_neat_population_run():
     assert opt.best_genome.key == reference.best_genome.key
 
 
-def test_ask_tell_report_and_errors():
-    obs = _obs(POP)
-    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=5)
+@pytest.mark.parametrize("genetics", GENETICS)
+def test_ask_tell_report_and_errors(genetics):
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=5, genetics=genetics)
     with pytest.raises(RuntimeError):
         opt.tell(torch.zeros(POP), torch.zeros(POP))
     for _ in range(4):
         policy = opt.ask()
         assert opt.ask() is policy  # one compile per generation
-        assert policy.population_size == POP
+        assert policy.population_size == opt.population_size == len(opt.population)
         assert list(policy.genome_keys) == sorted(opt.population)
         evaluated = {sid: len(s.members) for sid, s in opt.species.species.items()}
-        raw, selection, report = _generation(opt, obs)
-        assert isinstance(report, GenerationReport) and report.extra == {}
+        raw, selection, report = _generation(opt, _obs())
+        assert isinstance(report, GenerationReport)
+        assert report.extra.keys() == set(opt.diagnostics)
         assert report.species_sizes == evaluated
-        assert sum(report.species_sizes.values()) == POP
-        assert len(opt.population) == POP
-    policy = opt.ask()
+        assert sum(report.species_sizes.values()) == policy.population_size
+        if genetics == "2.0":
+            assert len(opt.population) == POP
+    size = opt.ask().population_size
     with pytest.raises(ValueError):
-        opt.tell(torch.zeros(POP - 1), torch.zeros(POP - 1))
+        opt.tell(torch.zeros(size - 1), torch.zeros(size - 1))
     with pytest.raises(ValueError):
-        opt.tell(torch.full((POP,), float("nan")), torch.zeros(POP))
+        opt.tell(torch.full((size,), float("nan")), torch.zeros(size))
     with pytest.raises(ValueError):
         NeatOptimizer(obs_dim=41, population_size=POP, seed=0, unconnected_outputs="x")
     with pytest.raises(ValueError):
@@ -183,15 +197,16 @@ def test_raw_and_selection_fitness_are_kept_apart():
     assert opt.task_best.key == genomes[0].key and opt.task_best.fitness == 0.0
 
 
-def test_reference_is_the_task_best_by_selection_fitness():
-    obs = _obs(POP, seed=1)
-    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=7, regularization=2.5)
+@pytest.mark.parametrize("genetics", GENETICS)
+def test_reference_is_the_task_best_by_selection_fitness(genetics):
+    obs = _obs(seed=1)
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=7, regularization=2.5, genetics=genetics)
     _generation(opt, obs)
     # generation 1: genome 11 gets the best selection fitness of the task (not the best raw)
-    opt.ask()
+    size = opt.ask().population_size
     star = opt.asked_genomes[11]
     star_signature = _signature(star)
-    bonus = torch.zeros(POP, dtype=torch.float64)
+    bonus = torch.zeros(size, dtype=torch.float64)
     bonus[11] = 100.0
     raw, selection, _ = _generation(opt, obs, bonus)
     star_fitness = float(selection[11])
@@ -219,11 +234,11 @@ def test_reference_is_the_task_best_by_selection_fitness():
     got = opt.regularise(raw)
     assert got.dtype == raw.dtype
     assert torch.allclose(got, expected, atol=1e-12, rtol=0)
-    assert int((got < raw).sum()) >= POP - 5  # almost everyone is penalised
+    assert int((got < raw).sum()) >= len(raw) - 5  # almost everyone is penalised
     assert opt.regularise(raw.float()).dtype == torch.float32
 
     # next task: its best (an elite, so unchanged in the next population) has no penalty
-    bonus = torch.zeros(POP, dtype=torch.float64)
+    bonus = torch.zeros(len(raw), dtype=torch.float64)
     bonus[5] = 1000.0
     star2 = opt.asked_genomes[5]
     opt.tell(raw, got + bonus)
@@ -233,17 +248,20 @@ def test_reference_is_the_task_best_by_selection_fitness():
     got = opt.regularise(raw)
     mine = [i for i, g in enumerate(opt.asked_genomes) if g is star2]
     assert len(mine) == 1 and got[mine[0]] == raw[mine[0]]
-    assert int((got < raw).sum()) >= POP - 6
+    assert int((got < raw).sum()) >= len(raw) - 6
 
 
-def test_penalty_averages_the_last_references():
-    obs = _obs(POP, seed=2)
-    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=8, regularization=1.0, references=2)
+@pytest.mark.parametrize("genetics", GENETICS)
+def test_penalty_averages_the_last_references(genetics):
+    obs = _obs(seed=2)
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=12, regularization=1.0, references=2,
+                        genetics=genetics)
     for _task in range(3):
         for _ in range(2):
             _generation(opt, obs)
         opt.end_task()
     assert len(opt.reference_genomes) == 3
+    assert opt.reference_genomes[-1] is not opt.reference_genomes[-2]  # (an elite can stay the best)
     raw = _fitness(opt.ask(), obs)
     gc = opt.config.genome_config
     last_two = opt.reference_genomes[-2:]
@@ -261,9 +279,53 @@ def test_penalty_averages_the_last_references():
     assert torch.equal(off.regularise(raw), raw)
 
 
-def test_state_dict_round_trip_continues_identically():
-    obs = _obs(POP, seed=3)
-    a = NeatOptimizer(obs_dim=41, population_size=POP, seed=9, regularization=1.5)
+@pytest.mark.parametrize("genetics", GENETICS)
+@pytest.mark.parametrize("regularization", [0.0, 2.0])
+def test_diagnostics(genetics, regularization, monkeypatch):
+    """Per generation: the mean and standard deviation of the regulariser's distance (NaN before
+    the first task end), computed once whether the regulariser is on or not, and the mean
+    fraction of disabled connections per genome."""
+    obs = _obs(seed=5)
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=13, regularization=regularization,
+                        genetics=genetics)
+    for _ in range(3):
+        _raw, _selection, report = _generation(opt, obs)
+        assert math.isnan(report.extra["distance_mean"]) and math.isnan(report.extra["distance_std"])
+    opt.end_task()
+    _generation(opt, obs)
+    opt.end_task()
+
+    opt.ask()
+    genomes = list(opt.asked_genomes)
+    gc = opt.config.genome_config
+    distances = torch.tensor([sum(r.distance(g, gc) for r in opt.reference_genomes[-1:]) for g in genomes],
+                             dtype=torch.float64)
+    disabled = [sum(not c.enabled for c in g.connections.values()) / len(g.connections) for g in genomes]
+    assert 0 < sum(disabled)
+    counting, calls = [True], [0]
+    distance, reproduce = opt.config.genome_type.distance, opt.reproduction.reproduce
+
+    def counted(self, other, config):
+        calls[0] += counting[0]
+        return distance(self, other, config)
+
+    def reproduce_without_counting(*args):  # speciation computes distances of its own
+        counting[0] = False
+        return reproduce(*args)
+
+    monkeypatch.setattr(opt.config.genome_type, "distance", counted)
+    monkeypatch.setattr(opt.reproduction, "reproduce", reproduce_without_counting)
+    _raw, _selection, report = _generation(opt, obs)
+    assert calls[0] == len(genomes)
+    assert report.extra["distance_mean"] == pytest.approx(distances.mean().item(), rel=1e-12)
+    assert report.extra["distance_std"] == pytest.approx(distances.std(unbiased=False).item(), rel=1e-12)
+    assert report.extra["disabled_fraction"] == pytest.approx(sum(disabled) / len(disabled), rel=1e-12)
+
+
+@pytest.mark.parametrize("genetics", GENETICS)
+def test_state_dict_round_trip_continues_identically(genetics):
+    obs = _obs(seed=3)
+    a = NeatOptimizer(obs_dim=41, population_size=POP, seed=9, regularization=1.5, genetics=genetics)
     for _ in range(2):
         _generation(a, obs)
     a.end_task()
@@ -274,8 +336,9 @@ def test_state_dict_round_trip_continues_identically():
     state = torch.load(io.BytesIO(buffer.getvalue()), weights_only=True)  # as a checkpoint file is
     assert isinstance(state["state"], str)
     assert a.state_dict()["generation"] == 3  # saving twice changes nothing either
+    assert state["genetics"] == genetics
 
-    b = NeatOptimizer(obs_dim=41, population_size=POP, seed=1234, regularization=1.5)
+    b = NeatOptimizer(obs_dim=41, population_size=POP, seed=1234, regularization=1.5, genetics=genetics)
     b.load_state_dict(state)
     assert b.generation == a.generation == 3
     # the task best is still the population's genome itself (an elite), so its next evaluation
@@ -290,13 +353,17 @@ def test_state_dict_round_trip_continues_identically():
         rb, sb, rep_b = _generation(b, obs)
         assert torch.equal(ra, rb) and torch.equal(sa, sb)
         assert rep_a.species_sizes == rep_b.species_sizes
+        assert json.dumps(rep_a.extra) == json.dumps(rep_b.extra)
         assert _population(a) == _population(b)
     ia = a.reproduction.innovation_tracker.global_counter
     assert ia == b.reproduction.innovation_tracker.global_counter
     assert next(a.config.genome_config.node_indexer) == next(b.config.genome_config.node_indexer)
 
     with pytest.raises(ValueError):
-        NeatOptimizer(obs_dim=61, population_size=POP, seed=0).load_state_dict(state)
+        NeatOptimizer(obs_dim=61, population_size=POP, seed=0, genetics=genetics).load_state_dict(state)
+    other = next(g for g in GENETICS if g != genetics)
+    with pytest.raises(ValueError, match=f"state has genetics='{genetics}', this optimiser '{other}'"):
+        NeatOptimizer(obs_dim=41, population_size=POP, seed=0, genetics=other).load_state_dict(state)
 
 
 def _same_state(a, b, pairs: dict) -> None:
@@ -338,7 +405,7 @@ def _through_a_file(state):
 
 
 def test_state_round_trip_keeps_every_object_shared_and_every_bit():
-    obs = _obs(POP, seed=5)
+    obs = _obs(seed=5)
     a = NeatOptimizer(obs_dim=41, population_size=POP, seed=11, regularization=0.5)
     for step in range(5):
         _generation(a, obs)
@@ -375,8 +442,8 @@ class _Genome(neat.DefaultGenome):
         self.lineage = [key]
 
 
-def _subclassed_config(num_inputs, pop_size):
-    config = build_neat_config(num_inputs, pop_size)
+def _subclassed_config(num_inputs, pop_size, genetics):
+    config = build_neat_config(num_inputs, pop_size, genetics=genetics)
     config.genome_type = _Genome
     config.genome_config.node_gene_type = _Node
     config.genome_config.connection_gene_type = _Connection
@@ -387,12 +454,12 @@ def test_state_of_subclassed_genomes_and_genes(monkeypatch):
     """Genome and gene subclasses (another genetics) are rebuilt as the configuration's classes,
     with the attributes they add."""
     monkeypatch.setattr("algorithms.neat_optimizer.build_neat_config", _subclassed_config)
-    obs = _obs(POP, seed=6)
-    a = NeatOptimizer(obs_dim=41, population_size=POP, seed=12)
+    obs = _obs(seed=6)
+    a = NeatOptimizer(obs_dim=41, population_size=POP, seed=12, genetics="2.0")  # the classes above are 2.0's
     for _ in range(2):
         _generation(a, obs)
     a.ask()
-    b = NeatOptimizer(obs_dim=41, population_size=POP, seed=13)
+    b = NeatOptimizer(obs_dim=41, population_size=POP, seed=13, genetics="2.0")
     b.load_state_dict(_through_a_file(a.state_dict()))
     genome = next(iter(b.population.values()))
     assert type(genome) is _Genome and genome.lineage == [genome.key]
@@ -414,7 +481,7 @@ def test_state_refuses_what_it_cannot_store():
         opt.state_dict()
     del genome.tags
     opt.reproduction.cache = {}
-    with pytest.raises(TypeError, match="reproduction Reproduction has state a NEAT checkpoint does not store: cache"):
+    with pytest.raises(TypeError, match=r"reproduction \w+ has state a NEAT checkpoint does not store: cache"):
         opt.state_dict()
 
 
@@ -427,13 +494,14 @@ def test_neat_state_floats_keep_their_bits(value):
         assert struct.pack("<d", got) == struct.pack("<d", value)
 
 
-def test_export_is_json():
-    obs = _obs(POP, seed=4)
-    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=10)
+@pytest.mark.parametrize("genetics", GENETICS)
+def test_export_is_json(genetics):
+    obs = _obs(seed=4)
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=10, genetics=genetics)
     for _ in range(3):
         _generation(opt, obs)
     policy = opt.ask()
-    for index in (0, POP - 1):
+    for index in (0, policy.population_size - 1):
         data = json.loads(json.dumps(opt.export(index)))
         genome = opt.asked_genomes[index]
         assert data["genome_key"] == genome.key and data["unconnected_outputs"] == "zero"
@@ -447,7 +515,7 @@ def test_spawn_counts_fit_the_population_where_neat_python_gives_up():
     """neat-python 2.0.0 raises mid-run when the species' spawn counts exceed the population by
     more than one per species above the minimum; the fixed reproduction trims them, and gives
     neat-python's own counts wherever neat-python succeeds."""
-    config = build_neat_config(41, pop_size=300)
+    config = build_neat_config(41, pop_size=300, genetics="2.0")
     assert config.reproduction_type is Reproduction
     ours = Reproduction(config.reproduction_config, neat.reporting.ReporterSet(), None)
     theirs = neat.DefaultReproduction(config.reproduction_config, neat.reporting.ReporterSet(), None)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -111,6 +112,27 @@ def test_compare_groups_configurations_and_matches_hand_computation(sweep, tmp_p
     assert float(written[0]["mean"]) == pytest.approx(rows[0]["mean"])
     assert (out / "comparison-current.png").read_bytes().startswith(PNG)
     assert "neat reg=1 red-green-red" in capsys.readouterr().out
+
+
+def test_runs_from_before_the_diagnostics_columns(sweep, tmp_path):
+    """NEAT runs written before metrics.csv had the optimiser's diagnostics columns still plot
+    and compare as before."""
+    old = tmp_path / "old"
+    shutil.copytree(sweep / "neat", old)
+    diagnostics = {"distance_mean", "distance_std", "disabled_fraction"}
+    for metrics in old.glob("*/metrics.csv"):
+        with open(metrics, newline="") as handle:
+            rows = list(csv.DictReader(handle))
+        columns = [c for c in rows[0] if c not in diagnostics]
+        assert len(columns) == len(rows[0]) - len(diagnostics)
+        with open(metrics, "w", newline="") as handle:
+            writer = csv.DictWriter(handle, columns, extrasaction="ignore", lineterminator="\n")
+            writer.writeheader()
+            writer.writerows(rows)
+    assert cli_main(["plot", str(old), "--out", str(tmp_path / "figures")]) == 0
+    assert len(list((tmp_path / "figures").glob("*.png"))) == 5
+    assert cli_main(["compare", str(old), "--out", str(tmp_path / "cmp")]) == 0
+    assert (tmp_path / "cmp" / "comparison.md").is_file()
 
 
 def test_bootstrap_interval():
