@@ -1,7 +1,7 @@
 """Optimisers behind one ask/tell interface (see ``algorithms.base``), by registry name."""
 from __future__ import annotations
 
-from .base import BatchedPolicy, GenerationReport, Optimizer
+from .base import BatchedPolicy, GenerationReport, Optimizer, OptimizerOptions
 from .es import ES_ALGORITHMS
 from .neat_optimizer import NeatOptimizer
 
@@ -40,5 +40,5 @@ def policy_from_export(exported: dict, device: str = "cpu") -> BatchedPolicy:
     raise ValueError("not an exported controller: expected a NEAT genome or an MLP (layer_sizes, parameters)")
 
 
-__all__ = ["policy_from_export", "REGISTRY", "BatchedPolicy", "GenerationReport", "Optimizer", "make_optimizer",
-           "UnknownAlgorithmError"]
+__all__ = ["policy_from_export", "REGISTRY", "BatchedPolicy", "GenerationReport", "Optimizer", "OptimizerOptions",
+           "make_optimizer", "UnknownAlgorithmError"]
