@@ -128,7 +128,7 @@ def test_grid_from_flags_and_file(tmp_path, capsys):
     names = [line.split()[-1] for line in capsys.readouterr().out.splitlines() if line.startswith("would run")]
     assert names[:2] == ["red-green-red-reg0", "red-green-red-reg1.5"] and names[-1] == "red-2-green-1-reg1.5"
     assert main(["sweep", "--seed", "1,x", "--dry-run"]) == 2
-    assert "--seed value 'x'" in capsys.readouterr().err
+    assert "--seed: 'x' is not an integer" in capsys.readouterr().err
     assert main(["sweep", "--seed", "1,1", "--dry-run"]) == 2
 
 
