@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import platform
@@ -121,19 +122,54 @@ class MetricsWriter:
         self.handle.close()
 
 
+FIXED_COLUMNS = ("task_index", "generation", "generation_in_task")
+"""The integer columns every metrics.csv starts with, after ``task``."""
+
+
 def read_metrics(path: Path) -> list[dict[str, str]]:
-    """Rows of a metrics.csv; a half-written last line (a killed run) is dropped."""
-    with open(path, newline="") as handle:
-        text = handle.read()
-    lines = text.split("\n")
-    complete = lines[:-1] if not text.endswith("\n") else lines
-    reader = csv.DictReader([line for line in complete if line])
-    return [row for row in reader if None not in row and all(v is not None for v in row.values())]
+    """Rows of a metrics.csv, checked against the contract: a header with the fixed columns, as
+    many cells in each row, integer counts, and numbers or nothing in every column but ``task``;
+    RunDirError naming the file, line and column otherwise. A half-written last line (a killed
+    run) is dropped."""
+    try:
+        with open(path, newline="") as handle:
+            text = handle.read()
+    except UnicodeDecodeError:
+        raise RunDirError(f"{path} is not a text file: is it a metrics.csv?") from None
+    complete = text[:text.rfind("\n") + 1]
+    lines = list(csv.reader(io.StringIO(complete)))
+    if not lines:
+        return []
+    header = lines[0]
+    missing = [c for c in ("task", *FIXED_COLUMNS) if c not in header]
+    if missing:
+        raise RunDirError(f"{path} line 1 is not a metrics.csv header: it lacks the column(s) {', '.join(missing)}")
+    rows = []
+    for number, cells in enumerate(lines[1:], start=2):
+        if len(cells) != len(header):
+            raise RunDirError(f"{path} line {number} has {len(cells)} cells for the header's {len(header)} columns")
+        row = dict(zip(header, cells))
+        for column, cell in row.items():
+            if column != "task" and not _is_metric(cell, integer=column in FIXED_COLUMNS):
+                kind = "an integer" if column in FIXED_COLUMNS else "a number"
+                raise RunDirError(f"{path} line {number}, column {column}: {cell!r} is not {kind}")
+        rows.append(row)
+    return rows
+
+
+def _is_metric(cell: str, integer: bool) -> bool:
+    if integer:
+        return cell.isascii() and cell.isdigit()
+    try:
+        float(cell or "nan")
+    except ValueError:
+        return False
+    return True
 
 
 def metric_columns(task_names: Iterable[str], has_species: bool, has_centre: bool) -> list[str]:
     """The metrics.csv header of a run: fixed by its schedule and algorithm."""
-    columns = ["task", "task_index", "generation", "generation_in_task"]
+    columns = ["task", *FIXED_COLUMNS]
     for prefix in ("", "reg_"):
         columns += [f"{prefix}best", f"{prefix}mean", f"{prefix}median", f"{prefix}std"]
     columns.append("top")
