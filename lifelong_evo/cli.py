@@ -188,6 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command line with ``argv`` (default: ``sys.argv[1:]``); returns the exit status."""
     from algorithms import UnknownAlgorithmError
 
     from .checkpoint import CheckpointError
@@ -197,8 +198,10 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or (argv[0] not in VERBS and argv[0] not in ("-h", "--help")):
         argv = ["run", *argv]
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exit_:  # --help, or argparse's one-line error: main returns the status either way
+        return exit_.code
     try:
         return args.handler(args) or 0
     except (CliError, ConfigError, RunDirError, ResumeError, CheckpointError, UnknownAlgorithmError) as error:

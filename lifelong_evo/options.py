@@ -6,11 +6,12 @@ The declarations are the dataclasses themselves: ``RunConfig`` (run options),
 ``envs.ForagingConfig`` (``--env``) and each optimiser's ``Options`` (``--option``): a field's
 type says how its value is parsed, its attribute docstring is the line the listing shows.
 
-Parsing contract: text (from the command line, or a TOML string) is read by the field's type;
-any other TOML value must already have it (an integer is fine for a number). Booleans: true/false,
-yes/no, on/off, 1/0 in any case. Integers: digits. Numbers: finite. Choices (``Literal``): one of
-the listed words. Lists: ``[32,16]`` (or ``32,16``; ``[]`` is empty). Anything else raises
-``envs.ConfigError`` naming the option, the value and what is accepted.
+Parsing contract: text (from the command line, or a TOML string) is read by the field's type,
+surrounding spaces ignored; any other TOML value must already have it (an integer is fine for a
+number). Booleans: true/false, yes/no, on/off, 1/0 in any case. Integers: decimal digits.
+Numbers: decimal, finite. Choices (``Literal``): one of the listed words. Lists: ``[32,16]`` (or
+``32,16``; ``[]`` is empty). Anything else raises ``envs.ConfigError`` naming the option, the
+value and what is accepted.
 """
 from __future__ import annotations
 
@@ -80,13 +81,13 @@ def _parse(kind: Any, value: Any) -> Any:
     elif kind is int:
         if isinstance(value, int) and not isinstance(value, bool):
             return value
-        if text is not None and re.fullmatch(r"[+-]?\d+", text):
+        if text is not None and re.fullmatch(r"[+-]?[0-9]+", text):
             return int(text)
     elif kind is float:
         number = None
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             number = float(value)
-        elif text is not None and re.fullmatch(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", text):
+        elif text is not None and re.fullmatch(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?", text):
             number = float(text)
         if number is not None and math.isfinite(number):
             return number
