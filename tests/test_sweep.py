@@ -132,6 +132,19 @@ def test_grid_from_flags_and_file(tmp_path, capsys):
     assert main(["sweep", "--seed", "1,1", "--dry-run"]) == 2
 
 
+def test_grid_values_are_typed_as_a_run_types_them(tmp_path, capsys):
+    argv = ["sweep", "--algo", "openai-es", "--preset", "smoke", "--out", str(tmp_path), "--name", "t", "--dry-run"]
+    assert main([*argv, "--option", "hidden=[8],[8,8]", "--env", "see_other_agents=no,YES"]) == 0
+    assert [line.split()[-1] for line in capsys.readouterr().out.splitlines() if line.startswith("would run")] == \
+        ["hidden8-see_other_agentsFalse", "hidden8-see_other_agentsTrue",
+         "hidden8-8-see_other_agentsFalse", "hidden8-8-see_other_agentsTrue"]
+    for bad, message in ((["--env", "see_other_agents=no,nah"], "--env see_other_agents: 'nah' is not a boolean"),
+                         (["--option", "hidden=[8],[0]"], "--option hidden must list integers >= 1")):
+        assert main([*argv, *bad]) == 2
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1
+
+
 def _summary(c1: float, r_top: float, complete: bool = True) -> dict:
     # the population's best (C) is above the top individual's (C_top): selection scores the latter
     summary = {"phases": ["red", "green", "red"], "current": [5.0, c1 + 10, 6.0],
