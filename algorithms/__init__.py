@@ -15,7 +15,8 @@ class UnknownAlgorithmError(ValueError):
 
 def make_optimizer(name: str, *, obs_dim: int, population_size: int, seed: int,
                    regularization: float = 0.0, device: str = "cpu", **options) -> Optimizer:
-    """Build the optimiser ``name`` for controllers with ``obs_dim`` inputs and 3 outputs."""
+    """Build the optimiser ``name`` for controllers with ``obs_dim`` inputs and 3 outputs;
+    ``options`` are fields of its ``Options`` (ValueError for a value out of range)."""
     try:
         cls = REGISTRY[name]
     except KeyError:
