@@ -72,9 +72,9 @@ class RunConfig:
 
         typed = {name: parse_value(kind, getattr(self, name), flag(name))
                  for name, kind in schema(RunConfig).items() if name not in ("env", "algo_options")}
-        if typed["algo"] not in REGISTRY:
-            raise ConfigError(f"unknown algorithm {typed['algo']!r}: choose one of {', '.join(REGISTRY)}")
         algo = typed["algo"]
+        if algo not in REGISTRY:
+            raise ConfigError(f"unknown algorithm {algo!r}: choose one of {', '.join(REGISTRY)}")
         optimizer = REGISTRY[algo]
         listed_by = "python -m lifelong_evo options"
         config = replace(self, **typed,
