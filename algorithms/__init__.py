@@ -1,7 +1,7 @@
 """Optimisers behind one ask/tell interface (see ``algorithms.base``), by registry name."""
 from __future__ import annotations
 
-from .base import BatchedPolicy, GenerationReport, Optimizer
+from .base import BatchedPolicy, GenerationReport, Optimizer, OptimizerOptions
 from .es import ES_ALGORITHMS
 from .neat_optimizer import NeatOptimizer
 
@@ -15,7 +15,8 @@ class UnknownAlgorithmError(ValueError):
 
 def make_optimizer(name: str, *, obs_dim: int, population_size: int, seed: int,
                    regularization: float = 0.0, device: str = "cpu", **options) -> Optimizer:
-    """Build the optimiser ``name`` for controllers with ``obs_dim`` inputs and 3 outputs."""
+    """Build the optimiser ``name`` for controllers with ``obs_dim`` inputs and 3 outputs;
+    ``options`` are fields of its ``Options`` (ValueError for a value out of range)."""
     try:
         cls = REGISTRY[name]
     except KeyError:
@@ -40,5 +41,5 @@ def policy_from_export(exported: dict, device: str = "cpu") -> BatchedPolicy:
     raise ValueError("not an exported controller: expected a NEAT genome or an MLP (layer_sizes, parameters)")
 
 
-__all__ = ["policy_from_export", "REGISTRY", "BatchedPolicy", "GenerationReport", "Optimizer", "make_optimizer",
-           "UnknownAlgorithmError"]
+__all__ = ["policy_from_export", "REGISTRY", "BatchedPolicy", "GenerationReport", "Optimizer", "OptimizerOptions",
+           "make_optimizer", "UnknownAlgorithmError"]

@@ -10,13 +10,14 @@ One generation of the lifelong loop is::
     optimiser.end_task()                           # at a drift: take the regulariser's reference
 
 Optimisers know nothing about environments, Rerun or files: they see observations and fitness
-tensors only.
+tensors only. Their options (the keyword arguments beyond the common ones) are declared once, as
+an ``OptimizerOptions`` dataclass.
 """
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
-from typing import Any, ClassVar, Protocol
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar, Literal, Protocol, get_args, get_origin, get_type_hints
 
 import torch
 
@@ -50,6 +51,26 @@ class GenerationReport:
     named in the optimiser's ``diagnostics`` also go to metrics.csv."""
 
 
+@dataclass(frozen=True)
+class OptimizerOptions:
+    """An optimiser's options, declared once: each field's default, its type (what a command-line
+    or TOML value is parsed to), and its docstring (the one line ``python -m lifelong_evo options``
+    shows). Constructing it raises ValueError for a value the optimiser cannot use, so a bad
+    option is refused before anything is built.
+
+    This base has no fields; it checks that every ``Literal`` field holds one of its choices.
+    Subclasses add fields, and range checks in a ``__post_init__`` that calls this one.
+    """
+
+    def __post_init__(self):
+        hints = get_type_hints(type(self))
+        for f in fields(self):
+            choices = get_args(hints[f.name]) if get_origin(hints[f.name]) is Literal else None
+            if choices and getattr(self, f.name) not in choices:
+                raise ValueError(f"{f.name} must be one of {', '.join(map(repr, choices))}, "
+                                 f"got {getattr(self, f.name)!r}")
+
+
 class Optimizer(ABC):
     """A population-based optimiser behind the ask/tell interface."""
 
@@ -57,6 +78,13 @@ class Optimizer(ABC):
     """Registry name, e.g. ``"neat"``."""
     has_regularizer: ClassVar[bool] = True
     """Whether ``regularization > 0`` means anything for this algorithm."""
+    Options: ClassVar[type[OptimizerOptions]] = OptimizerOptions
+    """The options the constructor takes as keyword arguments (none by default)."""
+
+    @classmethod
+    def check_population(cls, population_size: int) -> None:
+        """Raise ValueError unless this optimiser can evolve ``population_size`` controllers
+        (checked with the options, before anything is built; any size >= 1 by default)."""
 
     centre_index: int | None = None
     """Index of the search distribution's centre among the controllers (ES), else ``None``."""

@@ -11,12 +11,13 @@ fitness with the default CMA-ES weights (``mu = popsize // 2``, negative weights
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import torch
 from evotorch.algorithms import CMAES as _EvoCMAES
 
-from .es import ESOptimizer
+from .es import ESOptimizer, ESOptions
 
 
 class _AskTellCMAES(_EvoCMAES):
@@ -56,8 +57,13 @@ class CMAES(ESOptimizer):
 
     name: ClassVar[str] = "cmaes"
     separable: ClassVar[bool] = False
-    default_sigma: ClassVar[float] = 0.5
-    default_learning_rate: ClassVar[float] = 1.0
+
+    @dataclass(frozen=True)
+    class Options(ESOptions):
+        sigma: float = 0.5
+        """Initial step size."""
+        learning_rate: float = 1.0
+        """c_m, the learning rate of the mean (1: the standard CMA-ES)."""
 
     def _make_searcher(self, centre_init):
         return _AskTellCMAES(self.problem, stdev_init=self.sigma_init, popsize=self.n_samples,

@@ -18,18 +18,20 @@ fitness. Everything is float32; one seed gives the same numbers on CPU.
 from __future__ import annotations
 
 import logging
+import math
+import numbers
 import warnings
-from collections.abc import Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import torch
 from evotorch import Problem
 from evotorch.optimizers import ClipUp, TorchOptimizer
 
-from .base import GenerationReport, Optimizer
+from .base import GenerationReport, Optimizer, OptimizerOptions
 from .mlp import MLPPolicy, layer_sizes_for, n_parameters
-from .regularizers import Regularizer
+from .regularizers import Importance, Reference, Regularizer
 
 STATE_FORMAT = 1
 
@@ -65,42 +67,68 @@ class TellProblem(Problem):
         batch.set_evals(self.told)
 
 
+@dataclass(frozen=True)
+class ESOptions(OptimizerOptions):
+    """The options of every evolution strategy; each algorithm redeclares ``sigma`` and
+    ``learning_rate`` with its own default and meaning."""
+
+    hidden: tuple[int, ...] = (16,)
+    """Hidden layer sizes of the MLP controller, e.g. [32,16] ([]: none, a linear controller)."""
+    sigma: float = 0.1
+    """Initial standard deviation of the search distribution."""
+    learning_rate: float = 1.0
+    """Learning rate of the search distribution's centre."""
+    reference: Reference = "centre"
+    """The regulariser's reference, taken at each task end: the centre, or the task's best controller."""
+    importance: Importance = "l2"
+    """The regulariser's weight per parameter: all 1 (l2), or estimated from the search (ewc)."""
+
+    def __post_init__(self):
+        object.__setattr__(self, "hidden", tuple(self.hidden))
+        super().__post_init__()
+        if not all(isinstance(h, numbers.Integral) and not isinstance(h, bool) and h >= 1 for h in self.hidden):
+            raise ValueError(f"hidden must list integers >= 1 (the layer sizes), got {list(self.hidden)}")
+        for name in ("sigma", "learning_rate"):
+            value = getattr(self, name)
+            if not (isinstance(value, numbers.Real) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a number > 0, got {value!r}")
+
+
 class ESOptimizer(Optimizer):
     """Shared ask/tell adapter for an ES over ``MLPPolicy`` controllers.
 
     ``population_size`` is the number of samples per generation; ``ask()`` returns them plus the
     distribution centre as the last controller, so ``self.population_size`` is one more.
-    ``sigma``: initial (or, for OpenAI-ES, fixed) standard deviation of the search distribution;
-    ``learning_rate``: the centre's learning rate (its meaning per algorithm is in its class
-    docstring). ``reference`` and ``importance``: see ``algorithms.regularizers``. The search
-    distribution starts centred at the zero vector (all controller outputs 0.5).
+    ``options``: the fields of the algorithm's ``Options`` (``ESOptions`` with its defaults;
+    ``reference`` and ``importance``: see ``algorithms.regularizers``). The search distribution
+    starts centred at the zero vector (all controller outputs 0.5).
     """
 
-    default_sigma: ClassVar[float] = 0.1
-    default_learning_rate: ClassVar[float] = 1.0
+    Options: ClassVar[type[ESOptions]] = ESOptions
     even_population: ClassVar[bool] = False
     """Mirrored sampling needs an even number of samples."""
 
+    @classmethod
+    def check_population(cls, population_size: int) -> None:
+        if population_size < 2:
+            raise ValueError(f"{cls.name} needs at least 2 samples per generation, got {population_size}")
+        if cls.even_population and population_size % 2:
+            raise ValueError(f"{cls.name} samples mirrored pairs: the population must be even, got {population_size}")
+
     def __init__(self, *, obs_dim: int, population_size: int = 300, seed: int,
-                 regularization: float = 0.0, device: str | torch.device = "cpu",
-                 hidden: Sequence[int] = (16,), sigma: float | None = None,
-                 learning_rate: float | None = None, reference: str = "centre", importance: str = "l2"):
-        self.layer_sizes = layer_sizes_for(obs_dim, hidden)
+                 regularization: float = 0.0, device: str | torch.device = "cpu", **options):
+        self.options = self.Options(**options)
+        self.layer_sizes = layer_sizes_for(obs_dim, self.options.hidden)
         self.n_parameters = n_parameters(self.layer_sizes)
         self.n_samples = int(population_size)
-        if self.n_samples < 2:
-            raise ValueError(f"population_size must be >= 2 samples, got {population_size}")
-        if self.even_population and self.n_samples % 2:
-            raise ValueError(f"{self.name} samples mirrored pairs: population_size must be even, "
-                             f"got {population_size}")
-        self.sigma_init = float(self.default_sigma if sigma is None else sigma)
-        self.learning_rate = float(self.default_learning_rate if learning_rate is None else learning_rate)
-        if not (self.sigma_init > 0 and self.learning_rate > 0):
-            raise ValueError(f"sigma and learning_rate must be > 0, got {self.sigma_init}, {self.learning_rate}")
+        self.check_population(self.n_samples)
+        self.sigma_init = float(self.options.sigma)
+        self.learning_rate = float(self.options.learning_rate)
         self.device = torch.device(device)
         self.seed = int(seed)
         self.regularizer = Regularizer(regularization, n_parameters=self.n_parameters,
-                                       reference=reference, importance=importance, device=self.device)
+                                       reference=self.options.reference, importance=self.options.importance,
+                                       device=self.device)
         centre_init = torch.zeros(self.n_parameters, dtype=torch.float32, device=self.device)
         with _quiet_evotorch():
             self.problem = TellProblem(self.n_parameters, seed=self.seed, device=self.device)

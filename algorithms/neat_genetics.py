@@ -55,6 +55,7 @@ from __future__ import annotations
 import math
 import random
 import sys
+from typing import Literal, get_args
 
 import neat
 from neat.genes import DefaultConnectionGene, DefaultNodeGene
@@ -63,7 +64,8 @@ from neat.graphs import creates_cycle
 from neat.math_util import mean
 from neat.species import GenomeDistanceCache, Species
 
-GENETICS: tuple[str, ...] = ("0.92", "2.0")
+Genetics = Literal["0.92", "2.0"]
+GENETICS: tuple[str, ...] = get_args(Genetics)
 """The genetics a NEAT run can use: neat-python 0.92's (the paper's) or 2.0's."""
 DEFAULT_GENETICS = "0.92"
 
@@ -269,5 +271,5 @@ class Neat092SpeciesSet(neat.DefaultSpeciesSet):
             s.update(population[representative], {key: population[key] for key in members[sid]})
 
 
-__all__ = ["GENETICS", "DEFAULT_GENETICS", "check_genetics", "Neat092NodeGene", "Neat092ConnectionGene",
+__all__ = ["Genetics", "GENETICS", "DEFAULT_GENETICS", "check_genetics", "Neat092NodeGene", "Neat092ConnectionGene",
            "Neat092Genome", "Neat092Stagnation", "Neat092Reproduction", "Neat092SpeciesSet"]

@@ -26,9 +26,11 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import numbers
 import random
 import warnings
 from contextlib import contextmanager
+from dataclasses import dataclass
 from typing import Any
 
 import neat
@@ -37,12 +39,12 @@ from neat.export import export_network_json
 from neat.reporting import ReporterSet
 
 from . import neat_state
-from .base import GenerationReport, Optimizer
-from .neat_genetics import DEFAULT_GENETICS, check_genetics
+from .base import GenerationReport, Optimizer, OptimizerOptions
+from .neat_genetics import Genetics
 from .neat_network import (
     NEAT_SIGMOID_SLOPE,
-    UNCONNECTED_OUTPUTS_MODES,
     CompiledPopulation,
+    UnconnectedOutputs,
     build_neat_config,
     compile_genomes,
     genome_layers,
@@ -61,37 +63,46 @@ def _take_counter(obj, attr: str) -> int | None:
     return value
 
 
-class NeatOptimizer(Optimizer):
-    """neat-python NEAT with the paper's configuration; see the module docstring.
+@dataclass(frozen=True)
+class NeatOptions(OptimizerOptions):
+    """NEAT's options (the NEAT parameters themselves are the paper's: ``neat_config.ini``)."""
 
-    ``references``: the regulariser's penalty is the mean distance to the last ``references``
-    task references. ``unconnected_outputs``: how the batched networks treat nodes without
-    enabled inputs (``"zero"``: neat-python 0.92 and the paper; ``"bias"``: neat-python 2.0),
-    see ``algorithms.neat_network``. ``genetics``: ``"0.92"`` (the paper's) or ``"2.0"``, see
-    the module docstring.
-    """
+    references: int = 1
+    """The regulariser's penalty is the mean genetic distance to the last this many task references."""
+    unconnected_outputs: UnconnectedOutputs = "zero"
+    """Nodes without enabled inputs are dead (zero: neat-python 0.92, the paper's) or bias neurons
+    (bias: neat-python 2.0); see ``algorithms.neat_network``."""
+    genetics: Genetics = "0.92"
+    """The genetics the population evolves with: neat-python 0.92's (the paper's) or 2.0's; see
+    ``algorithms.neat_genetics``."""
+
+    def __post_init__(self):
+        super().__post_init__()
+        if isinstance(self.references, bool) or not isinstance(self.references, numbers.Integral) \
+                or self.references < 1:
+            raise ValueError(f"references must be an integer >= 1, got {self.references!r}")
+
+
+class NeatOptimizer(Optimizer):
+    """neat-python NEAT with the paper's configuration; see the module docstring and
+    ``NeatOptions`` for the options."""
 
     name = "neat"
     has_regularizer = True
+    Options = NeatOptions
     diagnostics = ("distance_mean", "distance_std", "disabled_fraction")
 
     def __init__(self, *, obs_dim: int, population_size: int, seed: int,
-                 regularization: float = 0.0, device: str | torch.device = "cpu",
-                 references: int = 1, unconnected_outputs: str = "zero",
-                 genetics: str = DEFAULT_GENETICS):
-        self.genetics = check_genetics(genetics)
-        if unconnected_outputs not in UNCONNECTED_OUTPUTS_MODES:
-            raise ValueError(f"unconnected_outputs must be one of {UNCONNECTED_OUTPUTS_MODES}, "
-                             f"got {unconnected_outputs!r}")
-        if int(references) < 1:
-            raise ValueError(f"references must be >= 1, got {references}")
+                 regularization: float = 0.0, device: str | torch.device = "cpu", **options):
+        self.options = self.Options(**options)
         if not (math.isfinite(regularization) and regularization >= 0):
             raise ValueError(f"regularization must be a finite number >= 0, got {regularization}")
         self.obs_dim = int(obs_dim)
         self.seed = int(seed)
         self.regularization = float(regularization)
-        self.references = int(references)
-        self.unconnected_outputs = unconnected_outputs
+        self.references = self.options.references
+        self.unconnected_outputs = self.options.unconnected_outputs
+        self.genetics = self.options.genetics
         self.device = torch.device(device)
         self.config = build_neat_config(self.obs_dim, int(population_size), genetics=self.genetics)
 

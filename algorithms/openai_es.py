@@ -9,11 +9,12 @@ method. (The paper's L2 weight decay is left out.)
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import ClassVar
 
 from evotorch.algorithms import PGPE as _EvoPGPE
 
-from .es import GaussianES
+from .es import ESOptions, GaussianES
 
 
 class OpenAIES(GaussianES):
@@ -22,8 +23,13 @@ class OpenAIES(GaussianES):
     name: ClassVar[str] = "openai-es"
     searcher_class = _EvoPGPE
     even_population = True
-    default_sigma: ClassVar[float] = 0.1
-    default_learning_rate: ClassVar[float] = 0.03
+
+    @dataclass(frozen=True)
+    class Options(ESOptions):
+        sigma: float = 0.1
+        """Standard deviation of the search distribution (fixed)."""
+        learning_rate: float = 0.03
+        """Adam's step size for the centre."""
 
     def _searcher_options(self):
         return {"center_learning_rate": self.learning_rate, "stdev_learning_rate": 0.0,

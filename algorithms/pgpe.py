@@ -9,11 +9,12 @@ adaptive per-parameter standard deviations (learning rate 0.1, at most 20% chang
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import ClassVar
 
 from evotorch.algorithms import PGPE as _EvoPGPE
 
-from .es import GaussianES
+from .es import ESOptions, GaussianES
 
 
 class PGPE(GaussianES):
@@ -22,8 +23,13 @@ class PGPE(GaussianES):
     name: ClassVar[str] = "pgpe"
     searcher_class = _EvoPGPE
     even_population = True
-    default_sigma: ClassVar[float] = 0.1
-    default_learning_rate: ClassVar[float] = 0.1
+
+    @dataclass(frozen=True)
+    class Options(ESOptions):
+        sigma: float = 0.1
+        """Initial standard deviation of the search distribution (adapted per parameter)."""
+        learning_rate: float = 0.1
+        """ClipUp's step size for the centre (its maximum speed is twice that)."""
 
     def _searcher_options(self):
         return {"center_learning_rate": self.learning_rate, "stdev_learning_rate": 0.1,

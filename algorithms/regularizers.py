@@ -49,13 +49,15 @@ a mean; with ``w = 1`` it is the paper's genetic-distance penalty for a fixed to
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal, get_args
 
 import torch
 from evotorch.tools.ranking import rank
 
-REFERENCES = ("centre", "best")
-IMPORTANCES = ("l2", "ewc")
+Reference = Literal["centre", "best"]
+Importance = Literal["l2", "ewc"]
+REFERENCES: tuple[str, ...] = get_args(Reference)
+IMPORTANCES: tuple[str, ...] = get_args(Importance)
 FISHER_WINDOW = 10
 """Generations whose sensitivities make the Gaussian ESs' Fisher-like importance."""
 

@@ -8,11 +8,12 @@ rate (default 1, the paper's).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import ClassVar
 
 from evotorch.algorithms import SNES as _EvoSNES
 
-from .es import GaussianES
+from .es import ESOptions, GaussianES
 
 
 class SNES(GaussianES):
@@ -20,8 +21,13 @@ class SNES(GaussianES):
 
     name: ClassVar[str] = "snes"
     searcher_class = _EvoSNES
-    default_sigma: ClassVar[float] = 0.5
-    default_learning_rate: ClassVar[float] = 1.0
+
+    @dataclass(frozen=True)
+    class Options(ESOptions):
+        sigma: float = 0.5
+        """Initial standard deviation of the search distribution (adapted per parameter)."""
+        learning_rate: float = 1.0
+        """Learning rate of the centre (1: the paper's)."""
 
     def _searcher_options(self):
         return {"center_learning_rate": self.learning_rate}

@@ -4,28 +4,46 @@
 
 A (1, lambda) hill climber on the project's MLP controller: each generation samples
 ``population_size`` perturbations of the incumbent (the incumbent itself is controller 0) and
-keeps the best. Registering it makes every verb (run, sweep, compare) accept ``--algo hill-climber``.
+keeps the best. Registering it makes every verb (run, sweep, compare) accept ``--algo hill-climber``;
+its ``Options`` declare ``--option sigma=0.05`` and ``--option hidden=[32,16]``: parsed, checked, and
+listed by ``python examples/custom_optimizer.py --help``.
 """
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass
 from typing import Any
 
 import torch
 
-from algorithms import REGISTRY, GenerationReport, Optimizer
+from algorithms import REGISTRY, GenerationReport, Optimizer, OptimizerOptions
 from algorithms.mlp import MLPPolicy, layer_sizes_for, n_parameters
 from lifelong_evo.cli import main
+
+
+@dataclass(frozen=True)
+class HillClimberOptions(OptimizerOptions):
+    sigma: float = 0.1
+    """Standard deviation of the perturbations."""
+    hidden: tuple[int, ...] = (16,)
+    """Hidden layer sizes of the MLP controller."""
+
+    def __post_init__(self):
+        super().__post_init__()
+        if not self.sigma > 0:
+            raise ValueError(f"sigma must be > 0, got {self.sigma}")
 
 
 class HillClimber(Optimizer):
     name = "hill-climber"
     has_regularizer = False
+    Options = HillClimberOptions
 
     def __init__(self, *, obs_dim: int, population_size: int, seed: int, regularization: float = 0.0,
-                 device: str = "cpu", sigma: float = 0.1, hidden=(16,)):
-        self.layer_sizes = layer_sizes_for(obs_dim, tuple(hidden))
-        self.sigma = sigma
+                 device: str = "cpu", **options):
+        options = self.Options(**options)
+        self.layer_sizes = layer_sizes_for(obs_dim, options.hidden)
+        self.sigma = options.sigma
         self.device = device
         self.generator = torch.Generator().manual_seed(seed)
         self.incumbent = torch.zeros(n_parameters(self.layer_sizes))

@@ -1,19 +1,23 @@
 """Command line: ``python -m lifelong_evo [run] --algo neat --reg 11`` and the other verbs.
 
 ``run`` (the default verb) runs the lifelong experiment; ``replay``, ``view``, ``plot``,
-``compare`` and ``sweep`` work on run directories. Every error is one line and a non-zero exit.
+``compare`` and ``sweep`` work on run directories; ``options`` lists the environment's and the
+optimisers' options. A mistake in what was given (an unknown option, a value its option cannot
+take, a missing file) is one line, ``error: ...``, and exit status 2, before anything is written.
 """
 from __future__ import annotations
 
 import argparse
-import ast
 import importlib
 import re
 import sys
 from dataclasses import fields, replace
 from pathlib import Path
 
+from envs import ConfigError
+
 from .config import PRESETS, RunConfig
+from .options import flag, listing, parse_value, plain, schema, show
 
 VERBS = {
     "run": ("lifelong_evo.cli", "Run the lifelong experiment (the default verb)."),
@@ -22,6 +26,7 @@ VERBS = {
     "plot": ("lifelong_evo.plots", "Write the paper's figures for runs as PNG."),
     "compare": ("lifelong_evo.compare", "Summary table of configurations over seeds, and an overlay figure."),
     "sweep": ("lifelong_evo.sweep", "Grid of runs (algorithms x lambda x seeds x ...) on Ray."),
+    "options": ("lifelong_evo.options", "List the environment's and each optimiser's options, with defaults."),
 }
 
 _FIELD_DOCS = {
@@ -46,15 +51,32 @@ class CliError(Exception):
     pass
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse with the command line's error contract: one line and exit status 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"error: {message} (see {self.prog} --help)\n")
+
+
+def _typed(kind):
+    """An argparse ``type`` parsing a flag's text as ``kind`` (``lifelong_evo.options``)."""
+    def parse(text: str):
+        try:
+            return parse_value(kind, text)
+        except ConfigError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+    return parse
+
+
 def add_run_options(parser: argparse.ArgumentParser) -> None:
     """The run options (shared with ``sweep``): defaults are None so that a TOML file and a
     preset can sit underneath; the help shows the paper defaults."""
     defaults = RunConfig()
+    kinds = schema(RunConfig)
     for f in fields(RunConfig):
         if f.name in _FIELD_DOCS:
-            flag = "--" + f.name.replace("_", "-")
-            parser.add_argument(flag, dest=f.name, type=type(getattr(defaults, f.name)) if f.name != "reg" else float,
-                                default=None, help=f"{_FIELD_DOCS[f.name]} (default: {getattr(defaults, f.name)})")
+            parser.add_argument(flag(f.name), dest=f.name, type=_typed(kinds[f.name]), default=None,
+                                help=f"{_FIELD_DOCS[f.name]} (default: {show(getattr(defaults, f.name))})")
     parser.add_argument("--no-record", dest="record", action="store_const", const=False, default=None,
                         help="do not write recording.rrd")
     parser.add_argument("--compile", dest="compile", action="store_const", const=True, default=None,
@@ -63,29 +85,23 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-compile", dest="compile", action="store_const", const=False,
                         help="run the environment's step eagerly")
     parser.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
-                        help="environment option, e.g. --env see_other_agents=true (repeatable)")
+                        help="environment option, e.g. --env see_other_agents=true (repeatable; listed below)")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
-                        help="optimiser option, e.g. --option sigma=0.05 (repeatable)")
+                        help="optimiser option, e.g. --option sigma=0.05 (repeatable; listed below)")
     parser.add_argument("--preset", default="paper", choices=sorted(PRESETS),
                         help="paper (default) or smoke (a run of seconds)")
     parser.add_argument("--config", default=None, metavar="FILE", help="TOML file; flags override it")
 
 
-def parse_assignments(items: list[str], what: str) -> dict:
+def parse_assignments(items: list[str], what: str) -> dict[str, str]:
+    """``KEY=VALUE`` items as ``{KEY: VALUE}``, the value still text: validating the run's
+    configuration parses it by its option's declared type."""
     values = {}
     for item in items:
         key, sep, text = item.partition("=")
-        if not sep or not key:
+        if not sep or not key.strip():
             raise CliError(f"{what} {item!r} is not KEY=VALUE")
-        lowered = text.strip().lower()
-        if lowered in ("true", "false"):
-            values[key.strip()] = lowered == "true"
-            continue
-        try:
-            value = ast.literal_eval(text)
-        except (ValueError, SyntaxError):
-            value = text
-        values[key.strip()] = list(value) if isinstance(value, tuple) else value
+        values[key.strip()] = text
     return values
 
 
@@ -153,14 +169,17 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m lifelong_evo", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = Parser(prog="python -m lifelong_evo", description=plain(__doc__),
+                    formatter_class=argparse.RawDescriptionHelpFormatter)
     verbs = parser.add_subparsers(dest="verb", metavar="VERB")
     for verb, (module, help_text) in VERBS.items():
         sub = verbs.add_parser(verb, help=help_text, description=help_text)
         if verb == "run":
             _run_parser(sub)
             sub.set_defaults(handler=_run)
+            sub.formatter_class = argparse.RawDescriptionHelpFormatter
+            sub.epilog = listing()
+            parser.epilog = "The default verb, run:\n\n" + sub.format_help()
         else:
             command = importlib.import_module(module)
             command.add_arguments(sub)
@@ -169,8 +188,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command line with ``argv`` (default: ``sys.argv[1:]``); returns the exit status."""
     from algorithms import UnknownAlgorithmError
-    from envs import ConfigError
 
     from .checkpoint import CheckpointError
     from .loop import ResumeError
@@ -179,8 +198,10 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or (argv[0] not in VERBS and argv[0] not in ("-h", "--help")):
         argv = ["run", *argv]
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exit_:  # --help, or argparse's one-line error: main returns the status either way
+        return exit_.code
     try:
         return args.handler(args) or 0
     except (CliError, ConfigError, RunDirError, ResumeError, CheckpointError, UnknownAlgorithmError) as error:

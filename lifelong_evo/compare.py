@@ -219,10 +219,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     rows, markdown = compare_table(args.paths)
     out = Path(args.out) if args.out else default_out(args.paths)
+    figures = overlay_figures(args.paths, out)  # reads every metrics.csv before it writes: a bad one writes nothing
     out.mkdir(parents=True, exist_ok=True)
     (out / "comparison.md").write_text(markdown + "\n")
     write_csv(rows, out / "comparison.csv")
-    figures = overlay_figures(args.paths, out)
     print(markdown)
     print(f"wrote {out / 'comparison.md'}, {out / 'comparison.csv'}" + "".join(f", {f}" for f in figures))
     return 0

@@ -8,6 +8,7 @@ from typing import Any
 
 from envs import ConfigError, ForagingConfig
 
+from .options import flag, parse_table, parse_value, schema
 from .schedule import ScheduleError, arena_colors, parse_schedule
 
 
@@ -62,31 +63,54 @@ class RunConfig:
         values = {"colors": arena_colors(phases), **self.env}
         return ForagingConfig.from_dict(values)
 
-    def validate(self) -> "RunConfig":
+    def validate(self, machine: bool = True) -> "RunConfig":
+        """This configuration with every value parsed to its declared type (``lifelong_evo.options``),
+        checked before anything is built or written: ConfigError, naming the option, otherwise.
+        ``machine``: also check what the machine that runs it needs (the device, and a C++
+        compiler for ``compile``); a sweep planned for other machines leaves that to them."""
         from algorithms import REGISTRY
 
-        if self.algo not in REGISTRY:
-            raise ConfigError(f"unknown algorithm {self.algo!r}: choose one of {', '.join(REGISTRY)}")
-        if self.reg < 0:
-            raise ConfigError(f"--reg must be >= 0, got {self.reg}")
-        if self.reg and not REGISTRY[self.algo].has_regularizer:
-            raise ConfigError(f"algorithm {self.algo!r} has no regulariser: drop --reg")
+        typed = {name: parse_value(kind, getattr(self, name), flag(name))
+                 for name, kind in schema(RunConfig).items() if name not in ("env", "algo_options")}
+        algo = typed["algo"]
+        if algo not in REGISTRY:
+            raise ConfigError(f"unknown algorithm {algo!r}: choose one of {', '.join(REGISTRY)}")
+        optimizer = REGISTRY[algo]
+        listed_by = "python -m lifelong_evo options"
+        config = replace(self, **typed,
+                         env=parse_table(ForagingConfig, self.env, "environment", "--env", listed_by),
+                         algo_options=parse_table(optimizer.Options, self.algo_options, algo, "--option",
+                                                  f"{listed_by} --algo {algo}"))
+        if config.reg < 0:
+            raise ConfigError(f"--reg must be >= 0, got {config.reg}")
+        if config.reg and not optimizer.has_regularizer:
+            raise ConfigError(f"algorithm {algo!r} has no regulariser: drop --reg")
         for name in ("generations", "population", "evals", "retention_every", "checkpoint_every", "threads",
                      "eval_threads"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
-        if self.episodes_every < 0:
-            raise ConfigError(f"--episodes-every must be >= 0, got {self.episodes_every}")
+            if getattr(config, name) < 1:
+                raise ConfigError(f"{flag(name)} must be >= 1, got {getattr(config, name)}")
+        if config.episodes_every < 0:
+            raise ConfigError(f"--episodes-every must be >= 0, got {config.episodes_every}")
         try:
-            phases = self.phases()
+            optimizer.Options(**config.algo_options)
+        except ValueError as error:
+            raise ConfigError(f"--option {error}") from None
+        try:
+            optimizer.check_population(config.population)
+        except ValueError as error:
+            raise ConfigError(f"--population: {error}") from None
+        try:
+            phases = config.phases()
         except ScheduleError as error:
             raise ConfigError(str(error)) from None
-        env = self.env_config()
+        env = config.env_config()
         for phase in phases:
             env.check_task(phase.task)
-        if self.compile:
-            require_cpp_compiler()
-        return self
+        if machine:
+            check_device(config.device)
+            if config.compile:
+                require_cpp_compiler()
+        return config
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -107,6 +131,29 @@ PRESETS: dict[str, dict[str, Any]] = {
 }
 """``paper``: the paper's protocol. ``smoke``: a run of seconds (so nothing to compile), for
 tests and a first look."""
+
+
+def check_device(name: str) -> None:
+    """Fail at once, not inside the first tensor operation, where ``name`` is no torch device or
+    one this machine does not have."""
+    import torch
+
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        raise ConfigError(f"--device {name!r} is not a torch device: use cpu, cuda or cuda:N") from None
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ConfigError(f"--device {name}: this machine has no CUDA device that torch can use "
+                              "(torch.cuda.is_available() is False): use --device cpu")
+        if device.index is not None and device.index >= torch.cuda.device_count():
+            raise ConfigError(f"--device {name}: this machine has {torch.cuda.device_count()} CUDA device(s), "
+                              f"numbered from 0")
+    elif device.type == "mps":
+        if not torch.backends.mps.is_available():
+            raise ConfigError(f"--device {name}: MPS is not available on this machine: use --device cpu")
+    elif device.type != "cpu":
+        raise ConfigError(f"--device {name}: only cpu, cuda and mps devices are supported")
 
 
 def require_cpp_compiler() -> None:
@@ -131,10 +178,14 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"config file {path} does not exist") from None
     except tomllib.TOMLDecodeError as error:
         raise ConfigError(f"config file {path} is not valid TOML: {error}") from None
+    except OSError as error:
+        raise ConfigError(f"config file {path} cannot be read: {error.strerror}") from None
 
 
-def resolve(preset: str = "paper", file_values: dict | None = None, overrides: dict | None = None) -> RunConfig:
-    """Defaults < preset < TOML file < command-line flags; nested tables merge key by key."""
+def resolve(preset: str = "paper", file_values: dict | None = None, overrides: dict | None = None,
+            machine: bool = True) -> RunConfig:
+    """Defaults < preset < TOML file < command-line flags; nested tables merge key by key; the
+    result validated (``RunConfig.validate``, which ``machine`` is passed to)."""
     if preset not in PRESETS:
         raise ConfigError(f"unknown preset {preset!r}: choose one of {', '.join(PRESETS)}")
     merged: dict[str, Any] = {}
@@ -143,7 +194,9 @@ def resolve(preset: str = "paper", file_values: dict | None = None, overrides: d
         RunConfig.from_dict(layer, source)  # reject unknown keys early, naming where they came from
         for key, value in layer.items():
             if key in ("env", "algo_options"):
+                if not isinstance(value, dict):
+                    raise ConfigError(f"{key} in {source} must be a table: write [{key}] and KEY = VALUE lines")
                 merged[key] = {**merged.get(key, {}), **value}
             else:
                 merged[key] = value
-    return replace(RunConfig(), **merged).validate()
+    return replace(RunConfig(), **merged).validate(machine)

@@ -14,7 +14,7 @@ import torch
 from algorithms import make_optimizer, policy_from_export
 
 from . import checkpoint
-from .config import RunConfig
+from .config import RunConfig, check_device
 from .episodes import play_episodes
 from .evaluate import evaluate, update_threads
 from .metrics import fitness_stats, retention, summarise
@@ -44,6 +44,7 @@ class LoopState:
 def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: bool = False,
         recorder: Recorder | None = None, progress: bool | None = None) -> dict[str, Any]:
     """Run (or continue) the lifelong experiment ``config`` into ``run_dir``; returns the summary."""
+    check_device(config.device)  # a resumed run or a sweep's trial may land on a machine without it
     torch.set_num_threads(config.threads)
     phases = config.phases()
     phase_names = [p.name for p in phases]

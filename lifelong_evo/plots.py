@@ -106,10 +106,7 @@ class Run:
 
 
 def _float(text: str) -> float:
-    try:
-        return float(text)
-    except (TypeError, ValueError):
-        return float("nan")
+    return float(text) if text else float("nan")  # read_metrics let only numbers and blanks through
 
 
 IGNORED_CONFIG_KEYS = ("seed", "versions", "name", "record", "threads", "eval_threads", "compile", "device",

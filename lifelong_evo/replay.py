@@ -46,6 +46,7 @@ def replay(run: str | Path, task_name: str | None = None, episodes: int = 5, con
     from algorithms import policy_from_export
     from envs import TASKS
 
+    from .config import check_device
     from .episodes import play_episodes
     from .loop import stored_config
     from .rundir import RunDir, read_json
@@ -55,6 +56,7 @@ def replay(run: str | Path, task_name: str | None = None, episodes: int = 5, con
         raise CliError(f"{run_dir.path} does not exist: give a run directory (runs/<name>)")
     if episodes < 1:
         raise CliError(f"--episodes must be >= 1, got {episodes}")
+    check_device(device)
     config = stored_config(run_dir)
     phases = config.phases()
     task_name = task_name or phases[-1].name

@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import platform
@@ -109,7 +110,8 @@ class MetricsWriter:
         self.columns = columns
         kept: list[dict[str, str]] = []
         if keep_generations is not None and path.exists():
-            kept = [row for row in read_metrics(path) if int(row["generation"]) < keep_generations]
+            kept = [row for row in read_metrics(path, required=("generation",))
+                    if int(row["generation"]) < keep_generations]
         rows = [",".join(columns)] + [",".join(row.get(c, "") for c in columns) for row in kept]
         atomic_write_bytes(path, ("\n".join(rows) + "\n").encode())
         self.handle = open(path, "a", newline="")
@@ -125,21 +127,58 @@ class MetricsWriter:
         self.handle.close()
 
 
-def read_metrics(path: Path) -> list[dict[str, str]]:
-    """Rows of a metrics.csv; a half-written last line (a killed run) is dropped."""
-    with open(path, newline="") as handle:
-        text = handle.read()
-    lines = text.split("\n")
-    complete = lines[:-1] if not text.endswith("\n") else lines
-    reader = csv.DictReader([line for line in complete if line])
-    return [row for row in reader if None not in row and all(v is not None for v in row.values())]
+FIXED_COLUMNS = ("task_index", "generation", "generation_in_task")
+"""The integer columns every metrics.csv starts with, after ``task``."""
+INTEGER_COLUMNS = {*FIXED_COLUMNS, "species", *SPECIES_COLUMNS}
+"""Integer columns of metrics.csv and species.csv; ``task`` is text, every other column a number."""
+
+
+def read_metrics(path: Path, required: tuple[str, ...] = ("task", *FIXED_COLUMNS)) -> list[dict[str, str]]:
+    """Rows of a metrics.csv (or species.csv), checked against the contract: a header with the
+    ``required`` columns, as many cells in each row, integers in the integer columns and numbers
+    or nothing in the others but ``task``; RunDirError naming the file, line and column otherwise.
+    A half-written last line (a killed run) is dropped."""
+    try:
+        with open(path, newline="") as handle:
+            text = handle.read()
+    except UnicodeDecodeError:
+        raise RunDirError(f"{path} is not a text file: is it a {path.name}?") from None
+    complete = text[:text.rfind("\n") + 1]
+    lines = list(csv.reader(io.StringIO(complete)))
+    if not lines:
+        return []
+    header = lines[0]
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise RunDirError(f"{path} line 1 is not a {path.name} header: it lacks the column(s) {', '.join(missing)}")
+    rows = []
+    for number, cells in enumerate(lines[1:], start=2):
+        if len(cells) != len(header):
+            raise RunDirError(f"{path} line {number} has {len(cells)} cells for the header's {len(header)} columns")
+        row = dict(zip(header, cells))
+        for column, cell in row.items():
+            if column != "task" and not _is_metric(cell, integer=column in INTEGER_COLUMNS):
+                kind = "an integer" if column in INTEGER_COLUMNS else "a number"
+                raise RunDirError(f"{path} line {number}, column {column}: {cell!r} is not {kind}")
+        rows.append(row)
+    return rows
+
+
+def _is_metric(cell: str, integer: bool) -> bool:
+    if integer:
+        return cell.isascii() and cell.isdigit()
+    try:
+        float(cell or "nan")
+    except ValueError:
+        return False
+    return True
 
 
 def metric_columns(task_names: Iterable[str], has_species: bool, has_centre: bool,
                    diagnostics: Iterable[str] = ()) -> list[str]:
     """The metrics.csv header of a run: fixed by its schedule and algorithm (``diagnostics``:
     the optimiser's, see ``algorithms.base.Optimizer.diagnostics``)."""
-    columns = ["task", "task_index", "generation", "generation_in_task"]
+    columns = ["task", *FIXED_COLUMNS]
     for prefix in ("", "reg_"):
         columns += [f"{prefix}best", f"{prefix}mean", f"{prefix}median", f"{prefix}std"]
     columns.append("top")

@@ -35,7 +35,6 @@ are shipped to the workers, the output folder must be on storage every node sees
 from __future__ import annotations
 
 import argparse
-import ast
 import csv
 import hashlib
 import io
@@ -50,15 +49,18 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from envs import ConfigError
+
 from .checkpoint import atomic_write_bytes
-from .cli import CliError, add_run_options, default_name, parse_assignments, resolve_run_config
-from .config import PRESETS, RunConfig, load_toml
+from .cli import CliError, add_run_options, default_name
+from .config import PRESETS, RunConfig, load_toml, resolve
+from .options import flag, parse_value, plain, schema
 from .plots import IGNORED_CONFIG_KEYS
 from .rundir import RunDirError, read_json, write_json
 
 RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in ("env", "algo_options")]
 """Run options with a flag of their own (``--no-record`` for ``record``)."""
-_TYPES = {name: type(getattr(RunConfig(), name)) for name in RUN_FIELDS}
+_TYPES = schema(RunConfig)
 _NESTED = {"env": "env", "algo_options": "option"}
 """Nested tables of RunConfig and the repeatable flag that sets their keys."""
 _LABELS = {"reg": "reg", "seed": "seed", "population": "pop", "generations": "gen", "evals": "evals",
@@ -71,11 +73,11 @@ STATUSES = ("done", "failed", "pending")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
-    parser.description = __doc__
+    parser.description = plain(__doc__)
     add_run_options(parser)
     for action in parser._actions:  # comma-separated values: parsed (and typed) by build_grid
         if action.dest in RUN_FIELDS and action.const is None:
-            action.type = str
+            action.type = None
             action.help += "; comma-separated values make an axis"
     parser.set_defaults(preset=None)  # None: the file's preset, else paper
     parser.add_argument("--name", default=None,
@@ -118,24 +120,10 @@ class Grid:
 
 def _coerce(key: str, value: Any, where: str) -> Any:
     """A value of run option ``key`` from text (command line) or TOML, typed like RunConfig's field."""
-    kind = _TYPES.get(key)
-    if kind is None:
-        return value
     try:
-        if isinstance(value, bool) != (kind is bool):
-            raise ValueError
-        if kind is str:
-            if not isinstance(value, str):
-                raise ValueError
-            return value.strip()
-        if kind is int and isinstance(value, float) and not value.is_integer():
-            raise ValueError
-        return kind(value)
-    except ValueError:
-        flag = "--" + key.replace("_", "-")
-        kinds = {int: "an integer", float: "a number", bool: "true or false", str: "text"}
-        raise CliError(f"{flag} value {value!r} {where} is not {kinds[kind]}: "
-                       f"write e.g. {flag} {getattr(RunConfig(), key)!s}") from None
+        return parse_value(_TYPES[key], value, flag(key))
+    except ConfigError as error:
+        raise CliError(f"{error} ({where})") from None
 
 
 def _split_flag(key: str, text: str) -> list[Any]:
@@ -153,18 +141,19 @@ def _split_flag(key: str, text: str) -> list[Any]:
     return [_coerce(key, item, "on the command line") for item in items]
 
 
-def _split_assignment(item: str, what: str) -> tuple[str, list[Any]]:
-    """``KEY=V1,V2`` -> (KEY, [V1, V2]); values typed as ``run`` types them, lists in brackets."""
+def _split_assignment(item: str, what: str) -> tuple[str, list[str]]:
+    """``KEY=V1,V2`` -> (KEY, ["V1", "V2"]), split at the commas outside brackets (``[16],[32,32]``
+    is two lists); the values stay text, typed when each trial's configuration is validated."""
     key, sep, text = item.partition("=")
     if not sep or not key.strip():
         raise CliError(f"{what} {item!r} is not KEY=VALUE (or KEY=V1,V2 for an axis)")
-    key = key.strip()
-    try:
-        value = ast.literal_eval(text)
-        pieces = [repr(v) for v in value] if isinstance(value, tuple) else [text]
-    except (ValueError, SyntaxError):
-        pieces = text.split(",")
-    return key, [parse_assignments([f"{key}={piece}"], what)[key] for piece in pieces]
+    pieces, depth, start = [], 0, 0
+    for i, char in enumerate(text):
+        depth += {"[": 1, "]": -1}.get(char, 0)
+        if char == "," and depth == 0:
+            pieces.append(text[start:i])
+            start = i + 1
+    return key.strip(), [*pieces, text[start:]]
 
 
 def _file_layer(path: str) -> tuple[dict[str, list[Any]], dict[str, Any], str | None, str | None]:
@@ -260,7 +249,9 @@ def build_grid(args: argparse.Namespace) -> Grid:
     grid = Grid(axes, fixed, preset, args.name or name)
     for combo in itertools.product(*axes.values()):
         values = dict(zip(axes, combo))
-        config = _resolve(preset, {**fixed, **values}, values)
+        # a cluster's machines, not this one, must have the device and compiler its trials need
+        config = _resolve(preset, {**fixed, **values}, values, machine=args.address is None)
+        values = {key: _typed_value(config, key) for key in values}
         grid.trials.append(Trial(trial_name(values, config), values, config))
     seen: dict[str, Trial] = {}
     for trial in grid.trials:
@@ -271,21 +262,26 @@ def build_grid(args: argparse.Namespace) -> Grid:
     return grid
 
 
-def _resolve(preset: str, values: dict[str, Any], axis_values: dict[str, Any]) -> RunConfig:
-    """One trial's RunConfig through ``cli.resolve_run_config``, as if its values were flags."""
-    from envs import ConfigError
-
-    args = argparse.Namespace(preset=preset, config=None, env=[], option=[],
-                              **{key: values.get(key) for key in RUN_FIELDS})
+def _resolve(preset: str, values: dict[str, Any], axis_values: dict[str, Any], machine: bool) -> RunConfig:
+    """One trial's RunConfig (``config.resolve``); ``values`` as the flags and the file gave them."""
+    overrides: dict[str, Any] = {}
     for key, value in values.items():
-        if "." in key:
-            nested, sub = key.split(".", 1)
-            getattr(args, _NESTED[nested]).append(f"{sub}={value!r}")
+        nested, _, sub = key.rpartition(".")
+        if nested:
+            overrides.setdefault(nested, {})[sub] = value
+        else:
+            overrides[key] = value
     try:
-        return resolve_run_config(args)
+        return resolve(preset, {}, overrides, machine=machine)
     except ConfigError as error:
         where = f" (trial {axis_values})" if axis_values else ""
         raise CliError(f"{error}{where}") from None
+
+
+def _typed_value(config: RunConfig, key: str) -> Any:
+    """The value of ``key`` (``reg``, ``algo_options.sigma``) in a validated configuration."""
+    nested, _, sub = key.rpartition(".")
+    return getattr(config, nested)[sub] if nested else getattr(config, key)
 
 
 def _slug(value: Any) -> str:

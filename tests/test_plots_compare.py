@@ -156,3 +156,27 @@ def test_compare_and_plot_errors_are_one_line(tmp_path, capsys):
         assert "no run directory" in err and err.count("\n") == 1
         assert cli_main([verb, str(tmp_path / "missing")]) == 2
         assert "does not exist" in capsys.readouterr().err
+
+
+def test_a_broken_metrics_csv_is_named_by_file_line_and_column(tmp_path, capsys):
+    """Without its header plot and compare died with a KeyError; a bad cell silently made a curve NaN."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({"algo": "neat", "reg": 0, "schedule": "red:2", "generations": 2}))
+    (run / "summary.json").write_text(json.dumps({"phases": ["red"], "current": [1.5]}))
+    header = "task,task_index,generation,generation_in_task,best\n"
+    cases = [("red,0,0,0,1.5\n", "metrics.csv line 1 is not a metrics.csv header: it lacks the column(s) task, "),
+             (header + "red,0,0,0,1.5\nred,0,1,1,abc\n", "metrics.csv line 3, column best: 'abc' is not a number"),
+             (header + "red,0,x,0,1.5\n", "metrics.csv line 2, column generation: 'x' is not an integer"),
+             (header + "red,0,0,0\n", "metrics.csv line 2 has 4 cells for the header's 5 columns")]
+    for verb in ("plot", "compare"):
+        for text, message in cases:
+            (run / "metrics.csv").write_text(text)
+            assert cli_main([verb, str(run), "--out", str(tmp_path / "out")]) == 2
+            err = capsys.readouterr().err
+            assert err.startswith("error: ") and message in err and err.count("\n") == 1, err
+            assert not (tmp_path / "out").exists(), "nothing is written"
+    (run / "metrics.csv").write_text(header + "red,0,0,0,\nred,0,1,1,2.5\nred,0,2,2,3")  # a blank, a half line
+    from lifelong_evo.plots import load_run
+
+    assert load_run(run).column("best")[1:].tolist() == [2.5] and len(load_run(run).metrics) == 2

@@ -89,16 +89,19 @@ def test_second_invocation_skips_finished_trials(smoke_sweep, capsys):
 
 
 def test_failed_trial_is_reported_and_the_others_finish(local_ray, tmp_path, capsys):
-    # sigma is an ES option: NEAT's constructor refuses it when its trial starts; OpenAI-ES takes it.
-    argv = ["sweep", "--algo", "neat,openai-es", "--seed", "2", "--option", "sigma=0.05", "--generations", "1",
+    # a file holds the neat trial's directory: its run fails when it starts (a bad option would be
+    # refused before any trial runs); OpenAI-ES runs
+    (tmp_path / "failing").mkdir()
+    (tmp_path / "failing" / "neat").write_text("not a run directory")
+    argv = ["sweep", "--algo", "neat,openai-es", "--seed", "2", "--generations", "1",
             *SMOKE, "--out", str(tmp_path), "--name", "failing"]
     assert main(argv) == 1
     printed = capsys.readouterr().out
     trials = _trials(tmp_path / "failing")
     assert trials["openai-es"]["status"] == "done"
     assert trials["neat"]["status"] == "failed"
-    assert "sigma" in trials["neat"]["error"] and "\n" not in trials["neat"]["error"]
-    assert "failed neat" in printed and "sigma" in printed
+    assert "Not a directory" in trials["neat"]["error"] and "\n" not in trials["neat"]["error"]
+    assert "failed neat" in printed and "Not a directory" in printed
     assert (tmp_path / "failing" / "openai-es" / "summary.json").is_file()
 
 
@@ -128,8 +131,24 @@ def test_grid_from_flags_and_file(tmp_path, capsys):
     names = [line.split()[-1] for line in capsys.readouterr().out.splitlines() if line.startswith("would run")]
     assert names[:2] == ["red-green-red-reg0", "red-green-red-reg1.5"] and names[-1] == "red-2-green-1-reg1.5"
     assert main(["sweep", "--seed", "1,x", "--dry-run"]) == 2
-    assert "--seed value 'x'" in capsys.readouterr().err
+    assert "--seed: 'x' is not an integer" in capsys.readouterr().err
     assert main(["sweep", "--seed", "1,1", "--dry-run"]) == 2
+
+
+def test_grid_values_are_typed_as_a_run_types_them(tmp_path, capsys):
+    argv = ["sweep", "--algo", "openai-es", "--preset", "smoke", "--out", str(tmp_path), "--name", "t", "--dry-run"]
+    assert main([*argv, "--option", "hidden=[8],[8,8]", "--env", "see_other_agents=no,YES"]) == 0
+    assert [line.split()[-1] for line in capsys.readouterr().out.splitlines() if line.startswith("would run")] == \
+        ["hidden8-see_other_agentsFalse", "hidden8-see_other_agentsTrue",
+         "hidden8-8-see_other_agentsFalse", "hidden8-8-see_other_agentsTrue"]
+    for bad, message in ((["--env", "see_other_agents=no,nah"], "--env see_other_agents: 'nah' is not a boolean"),
+                         (["--option", "hidden=[8],[0]"], "--option hidden must list integers >= 1"),
+                         (["--algo", "openai-es,neat", "--option", "sigma=0.05"],
+                          "unknown neat option 'sigma'")):
+        assert main([*argv, *bad]) == 2
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1
+    assert not (tmp_path / "t").exists()
 
 
 def _summary(c1: float, r_top: float, complete: bool = True) -> dict:
