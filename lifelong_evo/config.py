@@ -135,6 +135,12 @@ def load_toml(path: str | Path) -> dict[str, Any]:
 
 def resolve(preset: str = "paper", file_values: dict | None = None, overrides: dict | None = None) -> RunConfig:
     """Defaults < preset < TOML file < command-line flags; nested tables merge key by key."""
+    return replace(RunConfig(), **merge_layers(preset, file_values, overrides)).validate()
+
+
+def merge_layers(preset: str = "paper", file_values: dict | None = None, overrides: dict | None = None) -> dict:
+    """The values the preset, the TOML file and the flags set (flags win), without the defaults:
+    what a command states, e.g. to compare with a stored run's configuration."""
     if preset not in PRESETS:
         raise ConfigError(f"unknown preset {preset!r}: choose one of {', '.join(PRESETS)}")
     merged: dict[str, Any] = {}
@@ -146,4 +152,4 @@ def resolve(preset: str = "paper", file_values: dict | None = None, overrides: d
                 merged[key] = {**merged.get(key, {}), **value}
             else:
                 merged[key] = value
-    return replace(RunConfig(), **merged).validate()
+    return merged

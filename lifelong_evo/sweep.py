@@ -336,7 +336,7 @@ def run_trial(config_values: dict[str, Any], path: str, overwrite: bool) -> dict
             from .rerun_recorder import RerunRecorder
 
             recorder = RerunRecorder.for_run(run_dir, config, resume=resume)
-        summary = run(config, run_dir, resume=resume, overwrite=overwrite, recorder=recorder, progress=False)
+        summary = run(config, run_dir, resume=resume, overwrite=overwrite, recorder=recorder, progress="off")
         return {"status": "done", "error": "", "wall_time_s": summary["wall_time_s"]}
     except Exception as error:  # noqa: BLE001 - the driver records it and goes on
         return {"status": "failed", "error": _one_line(error), "wall_time_s": time.monotonic() - started}
