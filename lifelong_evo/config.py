@@ -102,11 +102,13 @@ class RunConfig:
 
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {},
-    "smoke": {"generations": 3, "population": 20, "evals": 2, "retention_every": 2, "checkpoint_every": 2,
-              "compile": False, "eval_threads": 1, "env": {"duration": 60}},
+    "smoke": {"generations": 5, "population": 20, "evals": 2, "retention_every": 2, "checkpoint_every": 2,
+              "compile": False, "eval_threads": 1, "env": {"duration": 200}},
 }
-"""``paper``: the paper's protocol. ``smoke``: a run of seconds (so nothing to compile), for
-tests and a first look."""
+"""``paper``: the paper's protocol. ``smoke``: a first look in seconds (eager: nothing to
+compile), with episodes long enough for the robots to reach boxes: at 60 steps the ES, which start
+near the zero controller, scored 0.00 everywhere; at 200 steps and 5 generations per task every
+algorithm scores and its best fitness moves within a task."""
 
 
 def require_cpp_compiler() -> None:
