@@ -746,8 +746,9 @@ def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep
             raise CliError(f"the Ray cluster has {resources.get('CPU', 0):g} CPUs, a trial asks for {widest} "
                            "(--threads times --eval-threads): lower them")
         where = f"the Ray cluster at {args.address}" if args.address else "a local Ray"
+        logs = "/tmp/ray/session_latest/logs" + (" on each node" if args.address else "")
         _print(f"running on {where}: {resources.get('CPU', 0):g} CPUs, {resources.get('GPU', 0):g} GPUs; "
-               f"Ray's messages go to {sweep_dir / RAY_LOG}, its logs to /tmp/ray/session_latest/logs on each node")
+               f"Ray's messages go to {sweep_dir / RAY_LOG}, its logs to {logs}")
         remote = ray.remote(run_trial)
         limit = args.workers or len(to_run)
         queue = list(to_run)
