@@ -393,12 +393,13 @@ def test_episodes_off_the_schedule_update_the_blueprint(tmp_path, monkeypatch):
 
     monkeypatch.delenv("LIFELONG_EVO_RERUN", raising=False)
     run_dir = RunDir(tmp_path / "run")
-    recorder = RerunRecorder.for_run(run_dir, resolve("smoke"), resume=False)
+    config = resolve("smoke", overrides={"generations": 3})  # generation 2 ends the first task
+    recorder = RerunRecorder.for_run(run_dir, config, resume=False)
     assert not run_dir.path.exists(), "nothing is written before the loop creates the run directory"
     recorder.log_episode(2, 0, "red", TASKS["red"], small_episode("red"))  # a task end: in the blueprint
     recorder.close()
     assert len(rerun_chunk.RrdReader(run_dir.recording).blueprints()) == 1
-    recorder = RerunRecorder.for_run(run_dir, resolve("smoke"), resume=False)
+    recorder = RerunRecorder.for_run(run_dir, config, resume=False)
     recorder.log_episode(1, 0, "red", TASKS["red"], small_episode("red"))  # not a task end
     recorder.close()
     assert len(rerun_chunk.RrdReader(run_dir.recording).blueprints()) == 2
