@@ -259,7 +259,7 @@ def test_resume_takes_the_original_command(smoke_runs, tmp_path, capsys):
 
 def test_ctrl_c_prints_the_command_that_resumes(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    stopped = subprocess.Popen(_cli("--algo", "neat", "--preset", "smoke", "--generations", "8", "--env", "duration=60",
+    stopped = subprocess.Popen(_cli("--algo", "neat", "--preset", "smoke", "--generations", "4", "--env", "duration=60",
                                     "--out", str(tmp_path), "--name", "stopped", "--no-record"),
                                env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     metrics = tmp_path / "stopped/metrics.csv"
