@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import re
+import shlex
 import sys
 from dataclasses import fields, replace
 from pathlib import Path
@@ -18,6 +20,7 @@ from envs import ConfigError
 
 from .config import PRESETS, RunConfig
 from .options import flag, listing, parse_value, plain, schema, show
+from .progress import MODES
 
 VERBS = {
     "run": ("lifelong_evo.cli", "Run the lifelong experiment (the default verb)."),
@@ -105,8 +108,9 @@ def parse_assignments(items: list[str], what: str) -> dict[str, str]:
     return values
 
 
-def resolve_run_config(args: argparse.Namespace, **forced) -> RunConfig:
-    from .config import load_toml, resolve
+def run_layers(args: argparse.Namespace, **forced) -> tuple[str, dict, dict]:
+    """The preset, the TOML file's values and the flags' values of a command (``config.resolve``'s layers)."""
+    from .config import load_toml
 
     overrides = {f.name: getattr(args, f.name) for f in fields(RunConfig)
                  if getattr(args, f.name, None) is not None and f.name not in ("env", "algo_options")}
@@ -118,7 +122,13 @@ def resolve_run_config(args: argparse.Namespace, **forced) -> RunConfig:
         overrides["algo_options"] = options
     overrides.update(forced)
     file_values = load_toml(args.config) if args.config else {}
-    return resolve(args.preset, file_values, overrides)
+    return args.preset, file_values, overrides
+
+
+def resolve_run_config(args: argparse.Namespace, **forced) -> RunConfig:
+    from .config import resolve
+
+    return resolve(*run_layers(args, **forced))
 
 
 def default_name(config: RunConfig) -> str:
@@ -130,9 +140,57 @@ def _run_parser(parser: argparse.ArgumentParser) -> None:
     add_run_options(parser)
     parser.add_argument("--out", default="runs", help="parent folder of run directories (default: runs)")
     parser.add_argument("--name", default=None, help="run directory name (default: from algo, schedule, reg, seed)")
-    parser.add_argument("--resume", action="store_true", help="continue the run from its last checkpoint")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run from its last checkpoint: give its --name, or the flags of "
+                             "the command that started it (flags that differ from its stored settings are refused)")
     parser.add_argument("--overwrite", action="store_true", help="delete an existing run directory first")
-    parser.add_argument("--quiet", action="store_true", help="no progress line")
+    parser.add_argument("--progress", choices=MODES, default=None,
+                        help="bar (the default on a terminal), lines (a line at every task end and at least "
+                             "every 30 s: the default where stderr is a file) or off")
+    parser.add_argument("--quiet", dest="progress", action="store_const", const="off", help="same as --progress off")
+
+
+RESUMABLE = ("record", "episodes_every")
+"""Settings a resumed run may change (``loop.run`` allows them): recording only."""
+
+
+def _same(a, b) -> bool:
+    """Equal as config.json stores them (tuples are lists; 11 and 11.0 are one value)."""
+    return json.loads(json.dumps(a)) == json.loads(json.dumps(b))
+
+
+def resumed_config(args: argparse.Namespace, stored: RunConfig, where: Path) -> RunConfig:
+    """``stored`` with the recording settings the command gives; any other setting the command
+    states (flags, --config, --preset) must equal the stored one, else CliError names each
+    difference with both values."""
+    from .config import merge_layers
+
+    stated = merge_layers(*run_layers(args))
+    differ = []
+    for key, value in stated.items():
+        if key in RESUMABLE:
+            continue
+        if key in ("env", "algo_options"):
+            # an environment option the run left at its default was run with that default
+            flag, kept = (("--env", {**stored.env_config().to_dict(), **stored.env}) if key == "env"
+                          else ("--option", stored.algo_options))
+            for sub, given in value.items():
+                if sub not in kept or not _same(kept[sub], given):
+                    differ.append(f"{flag} {sub}={given!r} (stored: {repr(kept[sub]) if sub in kept else 'not set'})")
+        elif not _same(getattr(stored, key), value):
+            differ.append(f"--{key.replace('_', '-')} {value!r} (stored: {getattr(stored, key)!r})")
+    if differ:
+        raise CliError(f"--resume continues {where} with its stored settings, and the command differs from them: "
+                       f"{'; '.join(differ)}: drop these flags or give the stored values")
+    return replace(stored, **{key: stated[key] for key in RESUMABLE if key in stated})
+
+
+def resume_command(args: argparse.Namespace, name: str) -> str:
+    """The command line that continues run ``name`` under ``args.out``."""
+    words = ["python", "-m", "lifelong_evo", "--resume", "--name", name]
+    if args.out != "runs":
+        words += ["--out", args.out]
+    return shlex.join(words)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -140,30 +198,30 @@ def _run(args: argparse.Namespace) -> int:
     from .rundir import RunDir
 
     if args.resume:
-        if args.name is None:
-            raise CliError("--resume needs --name (the run directory under --out) to know which run to continue")
-        run_dir = RunDir(Path(args.out) / args.name)
-        config = stored_config(run_dir)
-        changed = [f.name for f in fields(RunConfig) if f.name not in ("record", "env", "algo_options")
-                   and getattr(args, f.name, None) is not None and getattr(args, f.name) != getattr(config, f.name)]
-        if changed or args.env or args.option or args.config or args.preset != "paper":
-            raise CliError(f"--resume continues {run_dir.path} with its stored settings: drop "
-                           f"{', '.join('--' + c.replace('_', '-') for c in changed) or 'the other flags'}")
-        if args.record is False:
-            config = replace(config, record=False)
+        # the command that started the run, plus --resume, names the same directory
+        run_dir = RunDir(Path(args.out) / (args.name or default_name(resolve_run_config(args))))
+        config = resumed_config(args, stored_config(run_dir), run_dir.path)
     else:
         config = resolve_run_config(args)
         run_dir = RunDir(Path(args.out) / (args.name or default_name(config)))
+    print(f"run directory: {run_dir.path}", flush=True)
     recorder = None
     if config.record:
         from .rerun_recorder import RerunRecorder
 
         recorder = RerunRecorder.for_run(run_dir, config, resume=args.resume)
-    summary = run(config, run_dir, resume=args.resume, overwrite=args.overwrite, recorder=recorder,
-                  progress=False if args.quiet else None)
+    try:
+        summary = run(config, run_dir, resume=args.resume, overwrite=args.overwrite, recorder=recorder,
+                      progress=args.progress)
+    except KeyboardInterrupt:
+        if not run_dir.config.exists():
+            print(f"\ninterrupted before {run_dir.path} was written: nothing to resume", file=sys.stderr)
+        else:
+            print(f"\ninterrupted: {run_dir.path} keeps everything up to its last checkpoint; continue with\n"
+                  f"  {resume_command(args, run_dir.path.name)}", file=sys.stderr)
+        return 130
     from .report import summary_table
 
-    print(f"run directory: {run_dir.path}")
     print(summary_table(summary))
     return 0
 
@@ -208,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("\ninterrupted: everything up to the last checkpoint is kept; continue with --resume", file=sys.stderr)
+        print("\ninterrupted", file=sys.stderr)
         return 130
 
 

@@ -126,11 +126,12 @@ class RunConfig:
 
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {},
-    "smoke": {"generations": 3, "population": 20, "evals": 2, "retention_every": 2, "checkpoint_every": 2,
-              "compile": False, "eval_threads": 1, "env": {"duration": 60}},
+    "smoke": {"generations": 5, "population": 20, "evals": 2, "retention_every": 2, "checkpoint_every": 2,
+              "compile": False, "eval_threads": 1, "env": {"duration": 200}},
 }
-"""``paper``: the paper's protocol. ``smoke``: a run of seconds (so nothing to compile), for
-tests and a first look."""
+"""``paper``: the paper's protocol. ``smoke``: a first look in seconds (eager: nothing to
+compile), with episodes long enough for the robots to reach boxes, so that every algorithm scores
+and its best fitness moves within a task."""
 
 
 def check_device(name: str) -> None:
@@ -186,6 +187,12 @@ def resolve(preset: str = "paper", file_values: dict | None = None, overrides: d
             machine: bool = True) -> RunConfig:
     """Defaults < preset < TOML file < command-line flags; nested tables merge key by key; the
     result validated (``RunConfig.validate``, which ``machine`` is passed to)."""
+    return replace(RunConfig(), **merge_layers(preset, file_values, overrides)).validate(machine)
+
+
+def merge_layers(preset: str = "paper", file_values: dict | None = None, overrides: dict | None = None) -> dict:
+    """The values the preset, the TOML file and the flags set (flags win), without the defaults:
+    what a command states, e.g. to compare with a stored run's configuration."""
     if preset not in PRESETS:
         raise ConfigError(f"unknown preset {preset!r}: choose one of {', '.join(PRESETS)}")
     merged: dict[str, Any] = {}
@@ -199,4 +206,4 @@ def resolve(preset: str = "paper", file_values: dict | None = None, overrides: d
                 merged[key] = {**merged.get(key, {}), **value}
             else:
                 merged[key] = value
-    return replace(RunConfig(), **merged).validate(machine)
+    return merged

@@ -42,8 +42,9 @@ class LoopState:
 
 
 def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: bool = False,
-        recorder: Recorder | None = None, progress: bool | None = None) -> dict[str, Any]:
-    """Run (or continue) the lifelong experiment ``config`` into ``run_dir``; returns the summary."""
+        recorder: Recorder | None = None, progress: str | None = None) -> dict[str, Any]:
+    """Run (or continue) the lifelong experiment ``config`` into ``run_dir``; returns the summary.
+    ``progress``: a ``progress.MODES`` display on stderr, None for the stream's default."""
     check_device(config.device)  # a resumed run or a sweep's trial may land on a machine without it
     torch.set_num_threads(config.threads)
     phases = config.phases()
@@ -69,7 +70,7 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
     species_log = MetricsWriter(run_dir.species, SPECIES_COLUMNS, keep_generations=keep) if config.algo == "neat" else None
     recorder = recorder or NullRecorder()
     total = sum(p.generations for p in phases)
-    display = Progress(total, state.generation, enabled=progress)
+    display = Progress(total, state.generation, mode=progress)
     started = time.monotonic() - state.wall_time_s
     generation = 0
     try:
@@ -134,7 +135,8 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
                 state.generation = generation
                 state.wall_time_s = time.monotonic() - started
                 best_kept = {t.name: scores[t.name]["pop"] for t in earlier if t.name in scores}
-                display.update(generation - 1, phase.name, phase_index + 1, len(phases), raw.max().item(), best_kept)
+                display.update(generation - 1, phase.name, phase_index + 1, len(phases), raw.max().item(), best_kept,
+                               task_end=last)
                 if last or generation % config.checkpoint_every == 0:
                     _save_checkpoint(config, run_dir, optimizer, generator, state)
                     write_json(run_dir.summary, summarise(phase_names, state.phase_ends, state.initial,

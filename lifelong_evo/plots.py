@@ -12,14 +12,15 @@ For each group of runs that share a configuration (config.json without seed and 
                                  from ``species.csv`` (generation, species_id, size); one per seed
 
 A group of several seeds is drawn as the mean over seeds with a shaded min-max band. Colours are
-the task colours. Without ``--out`` a single run's figures go into its run directory and several
-groups' into ``plots/``.
+the task colours. Without ``--out`` the figures go next to the runs they plot: into the deepest
+folder that holds them all (a single run's directory; a sweep's directory for its trials).
 """
 from __future__ import annotations
 
 import argparse
 import csv
 import json
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -390,15 +391,10 @@ def plot_runs(paths, out: str | Path | None = None) -> list[Path]:
     if not runs:
         raise CliError("the runs have no metrics.csv rows yet: let a run write some generations first")
     groups = group_runs(runs)
+    target = Path(out) if out is not None else Path(os.path.commonpath([r.path.resolve() for r in runs]))
     written = []
     prefixes: dict[str, int] = {}
     for group in groups:
-        if out is not None:
-            target = Path(out)
-        elif len(groups) == 1 and len(group) == 1:
-            target = group[0].path
-        else:
-            target = Path("plots")
         prefix = slug(group[0].config)
         prefixes[prefix] = prefixes.get(prefix, 0) + 1
         if prefixes[prefix] > 1:  # same algorithm, schedule and lambda, other options
@@ -410,7 +406,8 @@ def plot_runs(paths, out: str | Path | None = None) -> list[Path]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("runs", nargs="+", metavar="RUN", help="run directories or folders holding them")
     parser.add_argument("--out", default=None, metavar="DIR",
-                        help="where to write the PNGs (default: the run directory for one run, else plots/)")
+                        help="where to write the PNGs (default: the folder that holds the runs: "
+                             "a single run's directory, a sweep's directory)")
 
 
 def main(args: argparse.Namespace) -> int:

@@ -8,6 +8,15 @@ def _fmt(value) -> str:
     return "-" if value is None else f"{value:.2f}"
 
 
+def duration(seconds: float) -> str:
+    """A wall time to read at a glance: seconds under a minute, minutes under an hour, else hours."""
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    if seconds < 3600:
+        return f"{seconds / 60:.1f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
 def summary_table(summary: dict[str, Any]) -> str:
     """The paper's table for one run: current performance per phase (the population's best and
     the top individual's: they differ when a regulariser ranks the population), then retention and
@@ -28,5 +37,5 @@ def summary_table(summary: dict[str, Any]) -> str:
         for level in ("pop", "top"):
             lines.append(f"{level:<5}  {_fmt(summary[f'ACC_{level}']):>6}  {_fmt(summary[f'BWT_{level}']):>6}  "
                          f"{_fmt(summary[f'FWT_{level}']):>6}")
-    lines.append(f"\nwall time: {summary['wall_time_s'] / 60:.1f} min")
+    lines.append(f"\nwall time: {duration(summary['wall_time_s'])}")
     return "\n".join(lines)

@@ -14,7 +14,8 @@ axes too; write a list-valued option in brackets (``--option hidden=[16,16]``, a
 Each trial is an ordinary run (``lifelong_evo.loop.run``) in ``<out>/<sweep>/<trial>/`` with the
 run-directory contract, named from its axes (``neat-reg5-seed13``). The sweep directory also holds
 ``sweep.json`` (grid and trials), ``trials.csv`` (trial, status done/failed/pending, error, wall
-time) and ``comparison.md`` (the ``compare`` table of the sweep plus the model-specific lambda rows).
+time), ``comparison.md`` (the ``compare`` table of the sweep plus the model-specific lambda rows)
+and ``ray.log`` (Ray's messages).
 
 Running the same command again skips finished trials and resumes unfinished ones from their
 checkpoints (``--overwrite`` restarts every trial). A failed trial is recorded and the others go
@@ -31,18 +32,32 @@ CPUs (1 unless told otherwise) and ``--gpus-per-trial`` GPUs (runs then use ``--
 HOST:PORT`` (or ``auto``) runs on an existing cluster (``ray start --head`` on one machine,
 ``ray start --address=HOST:6379`` on the others); the lifelong_evo, algorithms and envs packages
 are shipped to the workers, the output folder must be on storage every node sees.
+
+Token authentication (Ray >= 2.52; ``ray start`` turns it on where a token exists): where
+RAY_AUTH_MODE is not set and this machine has a token (RAY_AUTH_TOKEN, RAY_AUTH_TOKEN_PATH or
+~/.ray/auth_token), the sweep connects with it, as Ray itself does for ``--address auto``. A cluster
+that cannot be reached or refuses the token is a one-line error naming the fix, within seconds.
+
+Output: one line per finished trial, and a status line every minute in between. What Ray would
+print among them stays in files: its messages to the driver (task retries, a dying node's state
+dump) in ``ray.log`` in the sweep directory, its process logs in its session folders
+(``/tmp/ray/session_latest/logs`` on each node).
 """
 from __future__ import annotations
 
 import argparse
+import ast
+import contextlib
 import csv
 import hashlib
 import io
 import itertools
 import json
+import logging
 import math
 import os
 import re
+import socket
 import sys
 import time
 from dataclasses import dataclass, field, fields
@@ -56,6 +71,7 @@ from .cli import CliError, add_run_options, default_name
 from .config import PRESETS, RunConfig, load_toml, resolve
 from .options import flag, parse_value, plain, schema
 from .plots import IGNORED_CONFIG_KEYS
+from .report import duration
 from .rundir import RunDirError, read_json, write_json
 
 RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in ("env", "algo_options")]
@@ -332,7 +348,7 @@ def run_trial(config_values: dict[str, Any], path: str, overwrite: bool) -> dict
             from .rerun_recorder import RerunRecorder
 
             recorder = RerunRecorder.for_run(run_dir, config, resume=resume)
-        summary = run(config, run_dir, resume=resume, overwrite=overwrite, recorder=recorder, progress=False)
+        summary = run(config, run_dir, resume=resume, overwrite=overwrite, recorder=recorder, progress="off")
         return {"status": "done", "error": "", "wall_time_s": summary["wall_time_s"]}
     except Exception as error:  # noqa: BLE001 - the driver records it and goes on
         return {"status": "failed", "error": _one_line(error), "wall_time_s": time.monotonic() - started}
@@ -531,24 +547,119 @@ def _cpus(config: RunConfig) -> int:
     return config.threads * config.eval_threads
 
 
+CONNECT_TIMEOUT_S = 5.0
+"""How long the sweep waits for a cluster's address to answer before giving up."""
+STATUS_EVERY_S = 60.0
+"""A status line at least this often while trials run."""
+
+
 def _start_ray(args: argparse.Namespace):
     import ray
 
     if ray.is_initialized():
         return ray, False
+    # Ray's INFO lines and the token notice are for Ray's users; the sweep says what it connected to
+    logging.getLogger("ray._private.authentication.authentication_token_setup").setLevel(logging.ERROR)
+    quiet = {"log_to_driver": False, "logging_level": logging.WARNING}
     if args.address:
         import algorithms
         import envs
 
         import lifelong_evo
 
+        address = _check_cluster(args.address)
         modules = [str(Path(m.__file__).parent) for m in (lifelong_evo, algorithms, envs)]
-        ray.init(address=args.address, runtime_env={"py_modules": modules, "excludes": ["__pycache__"]})
+        try:
+            ray.init(address=address, runtime_env={"py_modules": modules, "excludes": ["__pycache__"]}, **quiet)
+        except (ConnectionError, RuntimeError, ray.exceptions.RayError) as error:
+            raise CliError(f"could not join the Ray cluster at {args.address}: {_one_line(error)}") from None
     else:
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
         # "local": always a new instance, never a cluster that `ray start` left running on this machine
-        ray.init(address="local", num_cpus=cores, include_dashboard=False)
+        ray.init(address="local", num_cpus=cores, include_dashboard=False, **quiet)
     return ray, True
+
+
+RAY_LOG = "ray.log"
+"""In the sweep directory: the messages Ray's driver would print (task retries, dead nodes' state dumps)."""
+
+
+@contextlib.contextmanager
+def _ray_messages_to(path: Path):
+    """Ray's driver prints the cluster's error messages to stdout from a thread of its own, a whole
+    state dump of every node that dies among them, whatever ``log_to_driver`` says; the sweep
+    appends them to ``path`` instead and reports each trial's outcome itself."""
+    from ray._private import worker
+
+    original = worker.print_to_stdstream
+
+    def to_file(data: dict[str, Any], ignore_prefix: bool) -> None:
+        stamp = time.strftime("%Y-%m-%d %H:%M:%S")
+        with open(path, "a") as log:  # opened per message: they are rare, and come from Ray's thread
+            log.writelines(f"{stamp} ({data.get('pid', 'ray')}) {line}\n" for line in data.get("lines", []))
+
+    worker.print_to_stdstream = to_file  # looked up by name on every message
+    try:
+        yield
+    finally:
+        worker.print_to_stdstream = original
+
+
+@contextlib.contextmanager
+def _native_stderr_silenced():
+    """Ray's C++ client logs its retries to file descriptor 2; the sweep reports the outcome itself."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "wb") as sink:
+            os.dup2(sink.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _check_cluster(given: str) -> str:
+    """The HOST:PORT of the cluster ``--address`` names, once it answers and accepts this
+    machine's token; otherwise CliError with the fix, within seconds (Ray itself would retry
+    for 20 s and end in a traceback). Turns token authentication on where a token is found."""
+    from ray._private.authentication.authentication_token_setup import maybe_enable_token_auth_if_token_available
+    from ray._private.services import canonicalize_bootstrap_address
+    from ray._raylet import AuthenticationMode, AuthenticationTokenLoader, GcsClient, get_authentication_mode
+    from ray.exceptions import AuthenticationError, RpcError
+
+    start_hint = "start it with `ray start --head --port=6379` (see the README), or fix --address"
+    try:
+        address = canonicalize_bootstrap_address(given)
+    except (ConnectionError, ValueError) as error:
+        raise CliError(f"--address {given}: {_one_line(error)}: {start_hint}") from None
+    host, _, port = address.rpartition(":")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT_S).close()
+    except (OSError, ValueError) as error:
+        reason = getattr(error, "strerror", None) or str(error) or type(error).__name__
+        raise CliError(f"no Ray cluster answers at {given} ({reason}): {start_hint}") from None
+    # an explicit address never turns token authentication on in Ray, while `ray start` does
+    maybe_enable_token_auth_if_token_available(warn_if_disabled=False)
+    copy = ("copy the head node's ~/.ray/auth_token to ~/.ray/auth_token on this machine (or set RAY_AUTH_TOKEN "
+            "to its contents)")
+    has_token = AuthenticationTokenLoader.instance().has_token(ignore_auth_mode=True)
+    token_mode = get_authentication_mode() == AuthenticationMode.TOKEN
+    if token_mode and not has_token:  # Ray's client would exit the process on its first request
+        raise CliError(f"RAY_AUTH_MODE is token and this machine has no Ray token: {copy}")
+    try:
+        with _native_stderr_silenced():
+            GcsClient(address=address)
+    except AuthenticationError:
+        if not has_token:
+            raise CliError(f"the Ray cluster at {given} requires its token and this machine has none: {copy}") from None
+        if not token_mode:
+            raise CliError(f"the Ray cluster at {given} requires its token and RAY_AUTH_MODE is "
+                           f"{os.environ.get('RAY_AUTH_MODE')!r} here: unset RAY_AUTH_MODE or set it to token") from None
+        raise CliError(f"the Ray cluster at {given} rejected this machine's token: {copy}") from None
+    except RpcError as error:
+        raise CliError(f"{given} does not answer as a Ray cluster ({_one_line(error)}): {start_hint}") from None
+    return address
 
 
 def _print(text: str) -> None:
@@ -620,7 +731,9 @@ def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep
     trials (killing their workers) and raise KeyboardInterrupt."""
     ray, started = _start_ray(args)
     in_flight: dict[Any, Trial] = {}
+    messages = contextlib.ExitStack()
     try:
+        messages.enter_context(_ray_messages_to(sweep_dir / RAY_LOG))
         resources = ray.cluster_resources()
         if args.gpus_per_trial > resources.get("GPU", 0):
             raise CliError(f"the Ray cluster has {resources.get('GPU', 0):g} GPU(s), a trial asks for "
@@ -629,10 +742,15 @@ def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep
         if widest > resources.get("CPU", 0):
             raise CliError(f"the Ray cluster has {resources.get('CPU', 0):g} CPUs, a trial asks for {widest} "
                            "(--threads times --eval-threads): lower them")
+        where = f"the Ray cluster at {args.address}" if args.address else "a local Ray"
+        logs = "/tmp/ray/session_latest/logs" + (" on each node" if args.address else "")
+        _print(f"running on {where}: {resources.get('CPU', 0):g} CPUs, {resources.get('GPU', 0):g} GPUs; "
+               f"Ray's messages go to {sweep_dir / RAY_LOG}, its logs to {logs}")
         remote = ray.remote(run_trial)
         limit = args.workers or len(to_run)
         queue = list(to_run)
         finished = len(grid.trials) - len(to_run)
+        started_at = last_line = time.monotonic()
         try:
             while queue or in_flight:
                 while queue and len(in_flight) < limit:
@@ -651,14 +769,20 @@ def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep
                     trial.status, trial.error = result["status"], result["error"]
                     trial.wall_time_s = result["wall_time_s"]
                     finished += 1
-                    wall = "" if trial.wall_time_s is None else f" ({trial.wall_time_s:.0f} s)"
+                    wall = "" if trial.wall_time_s is None else f" ({duration(trial.wall_time_s)})"
                     line = f"[{finished}/{len(grid.trials)}] {trial.status:<6} {trial.name}{wall}"
                     _print(line + (f": {trial.error}" if trial.error else ""))
                     write_trials_csv(sweep_dir, grid)
+                    last_line = time.monotonic()
+                if in_flight and time.monotonic() - last_line >= STATUS_EVERY_S:
+                    _print(f"[{finished}/{len(grid.trials)}] {len(in_flight)} running or waiting for CPUs, "
+                           f"{len(queue)} not submitted yet; {duration(time.monotonic() - started_at)} so far")
+                    last_line = time.monotonic()
         except KeyboardInterrupt:
             for ref in in_flight:
                 ray.cancel(ref, force=True)
             raise
     finally:
+        messages.close()
         if started:
             ray.shutdown()

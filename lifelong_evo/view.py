@@ -6,15 +6,25 @@ files. The native viewer is spawned where a display exists (DISPLAY or WAYLAND_D
 ``--web``, or without a display, the web viewer is served on 127.0.0.1 only (port ``--port``, gRPC
 ``--grpc-port``) and its address printed: open it in a browser (over ssh, forward both ports).
 The command runs until the viewer closes or Ctrl-C.
+
+Contracts: a web viewer's ports are checked before anything is printed, and one in use is a
+one-line error (exit 2), never a stale viewer behind a fresh address. The viewer process dies with
+``view``, even when ``view`` is killed (on Linux the kernel sends it SIGTERM when its parent dies;
+elsewhere SIGTERM and Ctrl-C reach it through ``view``). Rerun's own log lines are kept out of the
+terminal unless ``--verbose``; when the viewer fails, its last log line is the error.
 """
 from __future__ import annotations
 
 import argparse
+import ctypes
 import os
+import re
 import shutil
 import signal
+import socket
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 from urllib.parse import quote
 
@@ -78,6 +88,55 @@ def build_command(files: list[Path], web: bool, port: int, grpc_port: int) -> tu
              *map(str, files)], web_url(port, grpc_port))
 
 
+def port_in_use(port: int) -> bool:
+    """Whether a server could not listen on HOST:``port`` now."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        # as the viewer's own listener does, so that sockets a closed viewer left in TIME_WAIT do not count
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind((HOST, port))
+        except OSError:
+            return True
+    return False
+
+
+def check_ports(port: int, grpc_port: int) -> None:
+    """Refuse ports the web viewer could not listen on, before any address is printed."""
+    for flag, number in (("--port", port), ("--grpc-port", grpc_port)):
+        if not 0 < number < 65536:
+            raise CliError(f"{flag} {number} is not a port: give a number from 1 to 65535")
+    if port == grpc_port:
+        raise CliError(f"--port and --grpc-port are both {port}: give two different ports")
+    for flag, number in (("--port", port), ("--grpc-port", grpc_port)):
+        if port_in_use(number):
+            raise CliError(f"port {number} on {HOST} is in use (by another viewer or program): stop it, "
+                           f"or choose a free port with {flag}")
+
+
+def _die_with_parent(parent: int):
+    """A ``preexec_fn`` for the viewer: on Linux, have the kernel send it SIGTERM when ``view``
+    dies, even by SIGKILL, so that it never outlives ``view`` holding the ports."""
+    if not sys.platform.startswith("linux"):
+        return None
+    prctl = ctypes.CDLL(None).prctl  # looked up before the fork: the child only calls it
+    pr_set_pdeathsig = 1
+
+    def preexec() -> None:
+        prctl(pr_set_pdeathsig, int(signal.SIGTERM))
+        if os.getppid() != parent:  # view died before the request took effect
+            os._exit(1)
+
+    return preexec
+
+
+def last_log_line(log) -> str:
+    """The last non-empty line of the viewer's log, without its colour codes."""
+    log.seek(0)
+    lines = [re.sub(r"\x1b\[[0-9;]*m", "", line).strip() for line in log.read().decode(errors="replace").splitlines()]
+    lines = [line for line in lines if line]
+    return lines[-1] if lines else "no output"
+
+
 def _stop(signum, frame):
     raise KeyboardInterrupt
 
@@ -90,22 +149,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grpc-port", type=int, default=9876,
                         help="port the web viewer reads data from (default: 9876)")
     parser.add_argument("--replays", action="store_true", help="also open the run's replay-*.rrd recordings")
+    parser.add_argument("--verbose", action="store_true", help="show the viewer's own log lines")
 
 
 def main(args: argparse.Namespace) -> int:
     files = recording_files(args.run, args.replays)
     web = args.web or not has_display()
+    if web:
+        check_ports(args.port, args.grpc_port)
     command, url = build_command(files, web, args.port, args.grpc_port)
-    print("opening " + ", ".join(map(str, files)))
-    if url:
-        print(f"web viewer: {url}  (serving on {HOST} only; Ctrl-C stops it)", flush=True)
-    process = subprocess.Popen(command)
-    signal.signal(signal.SIGTERM, _stop)  # so that `finally` stops the viewer on kill too
-    try:
-        return process.wait()
-    except KeyboardInterrupt:
-        return 0
-    finally:
-        if process.poll() is None:
-            process.terminate()
-            process.wait()
+    print("opening " + ", ".join(map(str, files)), flush=True)
+    with tempfile.TemporaryFile() as log:
+        output = {} if args.verbose else {"stdout": subprocess.DEVNULL, "stderr": log}
+        process = subprocess.Popen(command, preexec_fn=_die_with_parent(os.getpid()), **output)
+        signal.signal(signal.SIGTERM, _stop)  # so that `finally` stops the viewer on kill too
+        if url:
+            print(f"web viewer: {url}  (serving on {HOST} only; Ctrl-C stops it)", flush=True)
+        try:
+            code = process.wait()
+        except KeyboardInterrupt:
+            return 0
+        finally:
+            if process.poll() is None:
+                process.terminate()
+                process.wait()
+        if code != 0 and not args.verbose:
+            raise CliError(f"the rerun viewer stopped with exit code {code}: {last_log_line(log)} "
+                           "(run again with --verbose for its whole log)")
+        return code

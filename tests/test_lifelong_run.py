@@ -37,13 +37,28 @@ SMOKE_RUNS = {"neat": ["--algo", "neat", "--reg", "2"],
               "openai-es": ["--algo", "openai-es", "--reg", "1"]}
 """Run directory name -> flags: NEAT with its default genetics (0.92) and with 2.0's, an ES."""
 
+TINY = ["--generations", "3", "--env", "duration=60"]
+"""The smoke preset cut to its old size: these tests check mechanics, not learning."""
+
 
 @pytest.fixture(scope="module")
 def smoke_runs(tmp_path_factory):
     out = tmp_path_factory.mktemp("runs")
     for name, flags in SMOKE_RUNS.items():
-        assert main([*flags, "--preset", "smoke", "--out", str(out), "--name", name, "--no-record", "--quiet"]) == 0
+        assert main([*flags, "--preset", "smoke", *TINY, "--out", str(out), "--name", name, "--no-record",
+                     "--quiet"]) == 0
     return out
+
+
+def test_the_smoke_preset_shows_an_es_learning(tmp_path, capsys):
+    """The quick look at an ES printed 0.00 everywhere when episodes were too short for robots
+    that start near the zero controller to reach a box; the smoke preset's do not."""
+    assert main(["--algo", "openai-es", "--preset", "smoke", "--out", str(tmp_path), "--name", "es", "--no-record",
+                 "--quiet"]) == 0
+    best = [float(row["best"]) for row in _rows(tmp_path / "es/metrics.csv")]
+    summary = json.loads((tmp_path / "es/summary.json").read_text())
+    assert best[-1] > best[0] and max(summary["current"]) > 0
+    assert capsys.readouterr().out.rstrip().endswith(" s")  # its wall time, in seconds
 
 
 @pytest.mark.parametrize("name", SMOKE_RUNS)
@@ -148,14 +163,14 @@ def test_the_top_individual_is_the_best_by_selection_fitness():
 
 
 def test_same_seed_same_numbers(smoke_runs, tmp_path):
-    assert main(["--algo", "neat", "--reg", "2", "--preset", "smoke", "--out", str(tmp_path), "--name", "again",
+    assert main(["--algo", "neat", "--reg", "2", "--preset", "smoke", *TINY, "--out", str(tmp_path), "--name", "again",
                  "--no-record", "--quiet"]) == 0
     assert (tmp_path / "again/metrics.csv").read_text() == (smoke_runs / "neat/metrics.csv").read_text()
 
 
 def test_compiled_run_gives_the_same_numbers(smoke_runs, tmp_path):
     """``--compile`` and ``--eval-threads`` change the speed of a run, not its numbers."""
-    assert main(["--algo", "neat", "--reg", "2", "--preset", "smoke", "--out", str(tmp_path), "--name", "compiled",
+    assert main(["--algo", "neat", "--reg", "2", "--preset", "smoke", *TINY, "--out", str(tmp_path), "--name", "compiled",
                  "--compile", "--eval-threads", "2", "--no-record", "--quiet"]) == 0
     assert (tmp_path / "compiled/metrics.csv").read_text() == (smoke_runs / "neat/metrics.csv").read_text()
 
@@ -189,7 +204,7 @@ def test_the_paper_preset_compiles_and_asks_for_a_compiler_up_front(tmp_path, ca
         assert not any(tmp_path.iterdir()), "nothing is written before the compiler is found"
         assert main(["--algo", "neat", *tiny, "--no-compile", "--out", str(tmp_path), "--name", "eager",
                      "--quiet", "--no-record"]) == 0
-        assert main(["--algo", "neat", "--preset", "smoke", "--out", str(tmp_path), "--name", "smoke",
+        assert main(["--algo", "neat", "--preset", "smoke", *TINY, "--out", str(tmp_path), "--name", "smoke",
                      "--quiet", "--no-record"]) == 0
     settings = [json.loads((tmp_path / name / "config.json").read_text()) for name in ("eager", "smoke")]
     assert [(s["compile"], s["eval_threads"]) for s in settings] == [(False, 2), (False, 1)]
@@ -320,6 +335,45 @@ def test_resume_refuses_changed_settings(smoke_runs, capsys):
     assert "stored settings" in capsys.readouterr().err
 
 
+def test_resume_takes_the_original_command(smoke_runs, tmp_path, capsys):
+    """The command that started a run, plus --resume, continues it (with or without --name);
+    flags that disagree with the stored settings are named with both values, in one line."""
+    original = ["--algo", "neat", "--reg", "2", "--preset", "smoke", *TINY, "--out", str(tmp_path), "--no-record",
+                "--quiet"]
+    for name in ("neat", "neat-red-green-red-reg2-seed42"):
+        shutil.copytree(smoke_runs / "neat", tmp_path / name)
+    assert main([*original, "--name", "neat", "--resume"]) == 0
+    assert main([*original, "--resume"]) == 0  # the name the original command derives
+    for name in ("neat", "neat-red-green-red-reg2-seed42"):
+        assert (tmp_path / name / "metrics.csv").read_text() == (smoke_runs / "neat/metrics.csv").read_text()
+    capsys.readouterr()
+    assert main([*original, "--name", "neat", "--resume", "--population", "50", "--env", "duration=100"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --resume continues") and err.count("\n") == 1
+    assert "--population 50 (stored: 20)" in err and "--env duration=100 (stored: 60)" in err
+
+
+def test_ctrl_c_prints_the_command_that_resumes(tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    stopped = subprocess.Popen(_cli("--algo", "neat", "--preset", "smoke", "--generations", "4", "--env", "duration=60",
+                                    "--out", str(tmp_path), "--name", "stopped", "--no-record"),
+                               env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    metrics = tmp_path / "stopped/metrics.csv"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and stopped.poll() is None:
+        if metrics.exists() and metrics.read_text().count("\n") > 4:
+            break
+        time.sleep(0.02)
+    stopped.send_signal(signal.SIGINT)
+    _, err = stopped.communicate(timeout=120)
+    assert stopped.returncode == 130, err
+    command = err.rstrip().splitlines()[-1].strip()
+    assert command == f"python -m lifelong_evo --resume --name stopped --out {tmp_path}"
+    subprocess.run([sys.executable, *command.split()[1:]], check=True, env=env, cwd=ROOT,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    assert len(json.loads((tmp_path / "stopped/summary.json").read_text())["current"]) == 3
+
+
 def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "lifelong_evo", *args]
 
@@ -328,7 +382,8 @@ def _cli(*args: str) -> list[str]:
                          ids=["neat", "neat-genetics-2.0", "openai-es"])
 def test_resume_after_sigkill_gives_identical_metrics(tmp_path, algo):
     """Kill a run with SIGKILL at a random moment, resume it, compare with an uninterrupted run."""
-    common = ["--algo", *algo, "--reg", "1", "--preset", "smoke", "--generations", "8", "--checkpoint-every", "3",
+    common = ["--algo", *algo, "--reg", "1", "--preset", "smoke", "--generations", "8", "--env", "duration=60",
+              "--checkpoint-every", "3",
               "--out", str(tmp_path), "--no-record", "--quiet"]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     subprocess.run(_cli(*common, "--name", "whole"), check=True, env=env, cwd=ROOT)
@@ -396,7 +451,7 @@ def test_the_update_gets_the_cores_of_the_evaluation_threads(monkeypatch, tmp_pa
 
     monkeypatch.setitem(REGISTRY, "recording-es", Recording)
     monkeypatch.setattr(evaluate, "_play", recording_play)
-    assert main(["--algo", "recording-es", "--preset", "smoke", "--threads", "1", "--eval-threads", "2",
+    assert main(["--algo", "recording-es", "--preset", "smoke", *TINY, "--threads", "1", "--eval-threads", "2",
                  "--out", str(tmp_path), "--no-record", "--quiet"]) == 0
     assert seen == {"ask": {2}, "tell": {2}, "evaluate": {1}}
     assert torch.get_num_threads() == 1

@@ -20,6 +20,7 @@ def sweep(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("sweep")
     for algo, seed, reg, name in (("neat", 1, "1", "a"), ("neat", 2, "1", "b"), ("openai-es", 1, "0", "c")):
         assert cli_main(["--algo", algo, "--reg", reg, "--seed", str(seed), "--preset", "smoke", "--no-record",
+                         "--generations", "3", "--env", "duration=60",
                          "--quiet", "--out", str(root / algo), "--name", name]) == 0
     return root
 
@@ -47,6 +48,23 @@ def test_plot_single_run_defaults_to_its_directory(sweep):
     run = sweep / "openai-es" / "c"
     assert cli_main(["plot", str(run)]) == 0
     assert (run / "openai-es-red-green-red-reg0-retention-pop.png").is_file()
+
+
+def test_plot_of_several_runs_writes_next_to_them(sweep, tmp_path, monkeypatch):
+    """Not into the working directory: into the folder holding the runs, as a sweep's directory."""
+    runs = tmp_path / "my-sweep"
+    shutil.copytree(sweep / "neat", runs)
+    monkeypatch.chdir(tmp_path)
+    assert cli_main(["plot", str(runs)]) == 0
+    assert (runs / "neat-red-green-red-reg1-retention-pop.png").is_file()
+    assert (runs / "neat-red-green-red-reg1-lifespans-seed2.png").is_file()
+    assert not (tmp_path / "plots").exists()
+    written = sorted(p.name for p in runs.glob("*.png"))
+    for png in runs.glob("*.png"):
+        png.unlink()
+    assert cli_main(["plot", str(runs / "a"), str(runs / "b")]) == 0  # runs given one by one
+    assert sorted(p.name for p in runs.glob("*.png")) == written
+    assert not (tmp_path / "plots").exists()
 
 
 def test_plot_series_follow_metrics(sweep):

@@ -3,7 +3,12 @@ episodes; ``view`` argument handling; ``replay``."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import socket
+import subprocess
+import sys
+import time
 from collections import defaultdict
 from pathlib import Path
 
@@ -31,10 +36,14 @@ def scalar_series(rows: dict[str, list[dict]], entity: str, gaps: bool = False) 
     return {g: v for g, v in series.items() if gaps == np.isnan(v)}
 
 
+TINY = ["--generations", "3", "--env", "duration=60"]
+"""The smoke preset cut to its old size: these tests check recordings, not learning."""
+
+
 @pytest.fixture(scope="module")
 def neat_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("runs")
-    assert cli_main(["--algo", "neat", "--reg", "1", "--preset", "smoke", "--out", str(out), "--name", "r",
+    assert cli_main(["--algo", "neat", "--reg", "1", "--preset", "smoke", *TINY, "--out", str(out), "--name", "r",
                      "--quiet"]) == 0
     return out / "r"
 
@@ -42,7 +51,8 @@ def neat_run(tmp_path_factory):
 @pytest.fixture(scope="module")
 def es_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("runs")
-    assert cli_main(["--algo", "openai-es", "--preset", "smoke", "--out", str(out), "--name", "e", "--quiet"]) == 0
+    assert cli_main(["--algo", "openai-es", "--preset", "smoke", *TINY, "--out", str(out), "--name", "e",
+                     "--quiet"]) == 0
     return out / "e"
 
 
@@ -243,7 +253,7 @@ def test_view_arguments_and_errors(es_run, tmp_path, capsys, monkeypatch):
     calls = []
 
     class Viewer:
-        def __init__(self, command):
+        def __init__(self, command, **kwargs):
             calls.append(command)
 
         def wait(self):
@@ -253,6 +263,7 @@ def test_view_arguments_and_errors(es_run, tmp_path, capsys, monkeypatch):
             return 0
 
     monkeypatch.setattr(view.subprocess, "Popen", Viewer)
+    monkeypatch.setattr(view, "port_in_use", lambda port: False)  # other programs may hold 9876 here
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     assert cli_main(["view", str(es_run), "--port", "9191"]) == 0  # no display: the web viewer
@@ -279,6 +290,89 @@ def test_view_arguments_and_errors(es_run, tmp_path, capsys, monkeypatch):
     assert calls == []
 
 
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def _view(*args: str, **kwargs) -> subprocess.Popen:
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env["PYTHONPATH"] = str(Path(__file__).resolve().parents[1])
+    return subprocess.Popen([sys.executable, "-m", "lifelong_evo", "view", *args], env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kwargs)
+
+
+def test_view_refuses_a_port_in_use_before_printing_an_address(es_run, capsys):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        for flags in (["--port", str(port)], ["--grpc-port", str(port)]):
+            assert cli_main(["view", str(es_run), "--web", *flags]) == 2
+            captured = capsys.readouterr()
+            assert "http" not in captured.out, "no address is printed for a viewer that cannot start"
+            assert captured.err.startswith(f"error: port {port} on 127.0.0.1 is in use") and \
+                captured.err.count("\n") == 1 and flags[0] in captured.err
+
+
+def _alive(pid: int) -> bool:
+    """Running: neither gone nor a zombie waiting to be reaped."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def _wait_for(condition, seconds: float) -> bool:
+    deadline = time.monotonic() + seconds
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.1)
+    return True
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the kernel's parent-death signal is Linux's")
+def test_killed_view_takes_its_viewer_along(es_run):
+    """SIGKILL leaves ``view`` no chance to stop the viewer: the viewer must go by itself and free
+    the ports, so that the next ``view`` serves its own recording there. Rerun's log stays out of
+    the output without --verbose."""
+    from lifelong_evo.view import port_in_use
+
+    port, grpc_port = _free_port(), _free_port()
+    parent = _view(str(es_run), "--web", "--port", str(port), "--grpc-port", str(grpc_port))
+    try:
+        printed = parent.stdout.readline() + parent.stdout.readline()
+        assert f"web viewer: http://127.0.0.1:{port}/" in printed
+        assert _wait_for(lambda: port_in_use(port) and port_in_use(grpc_port), 30), "the viewer did not start"
+        children = Path(f"/proc/{parent.pid}/task/{parent.pid}/children").read_text().split()
+        assert len(children) == 1
+    finally:
+        parent.kill()
+        parent.wait()
+    assert _wait_for(lambda: not _alive(int(children[0])), 10), "the viewer outlived view"
+    assert _wait_for(lambda: not port_in_use(port) and not port_in_use(grpc_port), 10), "the ports stay taken"
+    assert "INFO" not in parent.stderr.read(), "rerun's log lines are shown only with --verbose"
+
+
+def test_a_failing_viewer_is_one_line(es_run, tmp_path, monkeypatch):
+    fake = tmp_path / "rerun"
+    fake.write_text("#!/bin/sh\nprintf '\\033[32m INFO\\033[0m starting\\n' >&2\n"
+                    "printf '\\033[33m WARN\\033[0m no GPU adapter found\\n' >&2\nexit 3\n")
+    fake.chmod(0o755)
+    port, grpc_port = _free_port(), _free_port()
+    monkeypatch.setenv("RERUN_CLI_PATH", str(fake))
+    quiet = _view(str(es_run), "--web", "--port", str(port), "--grpc-port", str(grpc_port))
+    out, err = quiet.communicate(timeout=60)
+    assert quiet.returncode == 2
+    assert err == "error: the rerun viewer stopped with exit code 3: WARN no GPU adapter found " \
+                  "(run again with --verbose for its whole log)\n"
+    verbose = _view(str(es_run), "--web", "--port", str(port), "--grpc-port", str(grpc_port), "--verbose")
+    out, err = verbose.communicate(timeout=60)
+    assert verbose.returncode == 3 and "starting" in err and "no GPU adapter found" in err
+
+
 def small_episode(task: str, steps: int = 6, agents: int = 5, boxes: int = 4):
     from envs import TASKS
     from lifelong_evo.episodes import Episode
@@ -299,12 +393,13 @@ def test_episodes_off_the_schedule_update_the_blueprint(tmp_path, monkeypatch):
 
     monkeypatch.delenv("LIFELONG_EVO_RERUN", raising=False)
     run_dir = RunDir(tmp_path / "run")
-    recorder = RerunRecorder.for_run(run_dir, resolve("smoke"), resume=False)
+    config = resolve("smoke", overrides={"generations": 3})  # generation 2 ends the first task
+    recorder = RerunRecorder.for_run(run_dir, config, resume=False)
     assert not run_dir.path.exists(), "nothing is written before the loop creates the run directory"
     recorder.log_episode(2, 0, "red", TASKS["red"], small_episode("red"))  # a task end: in the blueprint
     recorder.close()
     assert len(rerun_chunk.RrdReader(run_dir.recording).blueprints()) == 1
-    recorder = RerunRecorder.for_run(run_dir, resolve("smoke"), resume=False)
+    recorder = RerunRecorder.for_run(run_dir, config, resume=False)
     recorder.log_episode(1, 0, "red", TASKS["red"], small_episode("red"))  # not a task end
     recorder.close()
     assert len(rerun_chunk.RrdReader(run_dir.recording).blueprints()) == 2
@@ -321,7 +416,7 @@ def test_unknown_sink_mode_is_one_line_error(tmp_path, monkeypatch, capsys):
 
 
 def test_episodes_every_records_the_top_individual_between_task_ends(tmp_path):
-    assert cli_main(["--algo", "openai-es", "--preset", "smoke", "--episodes-every", "4", "--out", str(tmp_path),
+    assert cli_main(["--algo", "openai-es", "--preset", "smoke", *TINY, "--episodes-every", "4", "--out", str(tmp_path),
                  "--name", "p", "--quiet"]) == 0
     rows = read_rrd(tmp_path / "p/recording.rrd")
     periodic = sorted({path.split("/")[1] for path in rows if path.startswith("episodes/")})

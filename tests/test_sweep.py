@@ -16,7 +16,8 @@ from lifelong_evo.sweep import model_specific_report, select_model_specific, sel
 ray = pytest.importorskip("ray")
 
 CONTRACT = ("config.json", "metrics.csv", "summary.json", "controllers/final-top.json")
-SMOKE = ["--preset", "smoke", "--no-record"]
+SMOKE = ["--preset", "smoke", "--no-record", "--env", "duration=60"]
+"""With shorter episodes than the preset's: these tests check the sweep, not learning."""
 
 
 def _trials(sweep_dir: Path) -> dict[str, dict[str, str]]:
