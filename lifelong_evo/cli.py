@@ -13,7 +13,7 @@ import json
 import re
 import shlex
 import sys
-from dataclasses import fields, replace
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 
 from envs import ConfigError
@@ -163,22 +163,29 @@ def resumed_config(args: argparse.Namespace, stored: RunConfig, where: Path) -> 
     """``stored`` with the recording settings the command gives; any other setting the command
     states (flags, --config, --preset) must equal the stored one, else CliError names each
     difference with both values."""
+    from algorithms import REGISTRY
+
     from .config import merge_layers
 
     stated = merge_layers(*run_layers(args))
+    # the stated values parsed to their types, as the run that stored them was
+    typed = replace(stored, **{key: value for key, value in stated.items() if key not in ("env", "algo_options")},
+                    env={**stored.env, **stated.get("env", {})},
+                    algo_options={**stored.algo_options, **stated.get("algo_options", {})}).validate(machine=False)
     differ = []
     for key, value in stated.items():
         if key in RESUMABLE:
             continue
         if key in ("env", "algo_options"):
-            # an environment option the run left at its default was run with that default
+            # an option the run left at its default was run with that default
             flag, kept = (("--env", {**stored.env_config().to_dict(), **stored.env}) if key == "env"
-                          else ("--option", stored.algo_options))
-            for sub, given in value.items():
+                          else ("--option", {**asdict(REGISTRY[stored.algo].Options()), **stored.algo_options}))
+            for sub in value:
+                given = getattr(typed, key)[sub]
                 if sub not in kept or not _same(kept[sub], given):
                     differ.append(f"{flag} {sub}={given!r} (stored: {repr(kept[sub]) if sub in kept else 'not set'})")
-        elif not _same(getattr(stored, key), value):
-            differ.append(f"--{key.replace('_', '-')} {value!r} (stored: {getattr(stored, key)!r})")
+        elif not _same(getattr(stored, key), getattr(typed, key)):
+            differ.append(f"--{key.replace('_', '-')} {getattr(typed, key)!r} (stored: {getattr(stored, key)!r})")
     if differ:
         raise CliError(f"--resume continues {where} with its stored settings, and the command differs from them: "
                        f"{'; '.join(differ)}: drop these flags or give the stored values")

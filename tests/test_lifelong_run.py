@@ -344,6 +344,7 @@ def test_resume_takes_the_original_command(smoke_runs, tmp_path, capsys):
         shutil.copytree(smoke_runs / "neat", tmp_path / name)
     assert main([*original, "--name", "neat", "--resume"]) == 0
     assert main([*original, "--resume"]) == 0  # the name the original command derives
+    assert main([*original, "--name", "neat", "--resume", "--option", "genetics=0.92"]) == 0  # the default, stated
     for name in ("neat", "neat-red-green-red-reg2-seed42"):
         assert (tmp_path / name / "metrics.csv").read_text() == (smoke_runs / "neat/metrics.csv").read_text()
     capsys.readouterr()
@@ -351,6 +352,8 @@ def test_resume_takes_the_original_command(smoke_runs, tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("error: --resume continues") and err.count("\n") == 1
     assert "--population 50 (stored: 20)" in err and "--env duration=100 (stored: 60)" in err
+    assert main([*original, "--name", "neat", "--resume", "--option", "genetics=2.0"]) == 2
+    assert "--option genetics='2.0' (stored: '0.92')" in capsys.readouterr().err
 
 
 def test_ctrl_c_prints_the_command_that_resumes(tmp_path):
