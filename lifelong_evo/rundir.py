@@ -70,13 +70,19 @@ class RunDir:
         self.controllers = self.path / "controllers"
 
     def create(self, overwrite: bool) -> None:
+        if self.path.exists() and not self.path.is_dir():
+            raise RunDirError(f"run directory {self.path} is a file: choose another --name or --out")
         if self.path.exists() and any(self.path.iterdir()):
             if not overwrite:
                 raise RunDirError(f"run directory {self.path} already exists: pass --resume to continue it, "
                                   "--overwrite to start it again, or --name for a new one")
             shutil.rmtree(self.path)
-        self.checkpoints.mkdir(parents=True, exist_ok=True)
-        self.controllers.mkdir(parents=True, exist_ok=True)
+        try:
+            self.checkpoints.mkdir(parents=True, exist_ok=True)
+            self.controllers.mkdir(parents=True, exist_ok=True)
+        except OSError as error:  # e.g. --out names a file, or a folder this user cannot write
+            raise RunDirError(f"cannot make run directory {self.path}: {error.strerror}: "
+                              "choose another --out or --name") from None
 
     def checkpoint_files(self) -> list[Path]:
         """The checkpoints, oldest first."""

@@ -235,3 +235,4 @@ def test_help_lists_every_option_with_its_default(capsys):
     assert main(["options", "--algo", "neat"]) == 0
     listed = capsys.readouterr().out
     assert "references=1" in listed and "sigma" not in listed and "environment" not in listed
+

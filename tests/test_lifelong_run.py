@@ -458,3 +458,14 @@ def test_the_update_gets_the_cores_of_the_evaluation_threads(monkeypatch, tmp_pa
                  "--out", str(tmp_path), "--no-record", "--quiet"]) == 0
     assert seen == {"ask": {2}, "tell": {2}, "evaluate": {1}}
     assert torch.get_num_threads() == 1
+
+
+@pytest.mark.parametrize("where", ["out", "name"])
+def test_a_run_directory_where_a_file_is(tmp_path, capsys, where):
+    blocker = tmp_path / "taken"
+    blocker.write_text("not a folder")
+    args = ["--out", str(blocker), "--name", "x"] if where == "out" else ["--out", str(tmp_path), "--name", "taken"]
+    assert main(["--preset", "smoke", "--no-record", "--quiet", *args]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "--out" in err
+    assert blocker.read_text() == "not a folder"
