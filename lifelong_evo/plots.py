@@ -18,7 +18,6 @@ folder that holds them all (a single run's directory; a sweep's directory for it
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import re
@@ -96,14 +95,11 @@ class Run:
         path = self.path / "species.csv"
         if not path.exists():
             return None
-        with open(path, newline="") as handle:
-            rows = []
-            for row in csv.DictReader(handle):
-                try:
-                    rows.append((int(row["generation"]), int(row["species_id"]), int(row["size"])))
-                except (KeyError, TypeError, ValueError):
-                    continue  # a half-written last line of a killed run
-        return rows
+        from .rundir import SPECIES_COLUMNS, read_metrics
+
+        # checked as metrics.csv is: a broken line is an error naming it, a half-written last one dropped
+        return [(int(row["generation"]), int(row["species_id"]), int(row["size"]))
+                for row in read_metrics(path, required=tuple(SPECIES_COLUMNS))]
 
 
 def _float(text: str) -> float:

@@ -198,3 +198,22 @@ def test_a_broken_metrics_csv_is_named_by_file_line_and_column(tmp_path, capsys)
     from lifelong_evo.plots import load_run
 
     assert load_run(run).column("best")[1:].tolist() == [2.5] and len(load_run(run).metrics) == 2
+
+
+def test_a_broken_species_csv_is_named_too(tmp_path, capsys):
+    """species.csv lines that were not numbers were skipped without a word, and a lifespan bar
+    was silently lost."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({"algo": "neat", "reg": 0, "schedule": "red:2", "generations": 2}))
+    (run / "summary.json").write_text(json.dumps({"phases": ["red"], "current": [1.5]}))
+    (run / "metrics.csv").write_text("task,task_index,generation,generation_in_task,best,species\n"
+                                     "red,0,0,0,1.5,1\nred,0,1,1,2.5,1\n")
+    (run / "species.csv").write_text("generation,species_id,size\n0,1,20\n1,one,20\n")
+    assert cli_main(["plot", str(run), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "species.csv line 3, column species_id: 'one' is not an integer" in err and err.count("\n") == 1
+    (run / "species.csv").write_text("generation,species_id,size\n0,1,20\n1,1,2")  # a half-written last line
+    from lifelong_evo.plots import load_run
+
+    assert load_run(run).species_rows() == [(0, 1, 20)]
