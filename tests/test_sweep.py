@@ -101,8 +101,8 @@ def test_failed_trial_is_reported_and_the_others_finish(local_ray, tmp_path, cap
     trials = _trials(tmp_path / "failing")
     assert trials["openai-es"]["status"] == "done"
     assert trials["neat"]["status"] == "failed"
-    assert "Not a directory" in trials["neat"]["error"] and "\n" not in trials["neat"]["error"]
-    assert "failed neat" in printed and "Not a directory" in printed
+    assert "is a file" in trials["neat"]["error"] and "\n" not in trials["neat"]["error"]
+    assert "failed neat" in printed and "is a file" in printed
     assert (tmp_path / "failing" / "openai-es" / "summary.json").is_file()
 
 
