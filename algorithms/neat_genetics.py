@@ -71,12 +71,10 @@ DEFAULT_GENETICS = "0.92"
 
 
 def check_genetics(value) -> str:
-    """``value`` as one of ``GENETICS``; the numbers 0.92 and 2.0 (what ``--option genetics=2.0``
-    parses to) are accepted as the strings."""
-    text = str(value)
-    if text not in GENETICS:
+    """``value`` if it is one of ``GENETICS`` (version names, as strings), else ValueError."""
+    if value not in GENETICS:
         raise ValueError(f"genetics must be one of {', '.join(repr(g) for g in GENETICS)}, got {value!r}")
-    return text
+    return value
 
 
 class Neat092NodeGene(DefaultNodeGene):
