@@ -1,12 +1,21 @@
-"""Optimisers behind one ask/tell interface (see ``algorithms.base``), by registry name."""
+"""Optimisers behind one ask/tell interface (see ``algorithms.base``), by registry name.
+
+Each optimiser is one module; this package imports them and builds ``REGISTRY``, so an optimiser
+module never imports the registry and no module imports the package that imports it.
+"""
 from __future__ import annotations
 
 from .base import BatchedPolicy, GenerationReport, Optimizer, OptimizerOptions
-from .es import ES_ALGORITHMS
+from .cmaes import CMAES, SepCMAES
+from .es import ESOptimizer
 from .neat_optimizer import NeatOptimizer
+from .openai_es import OpenAIES
+from .pgpe import PGPE
+from .snes import SNES
 
-REGISTRY: dict[str, type[Optimizer]] = {"neat": NeatOptimizer, **ES_ALGORITHMS}
-"""Every optimiser by the name the command line uses."""
+REGISTRY: dict[str, type[Optimizer]] = {cls.name: cls for cls in (NeatOptimizer, CMAES, SepCMAES, OpenAIES, PGPE, SNES)}
+"""Every optimiser by the name the command line uses (``--algo``); add your own with
+``REGISTRY["my-algo"] = MyOptimizer``."""
 
 
 class UnknownAlgorithmError(ValueError):
@@ -41,5 +50,6 @@ def policy_from_export(exported: dict, device: str = "cpu") -> BatchedPolicy:
     raise ValueError("not an exported controller: expected a NEAT genome or an MLP (layer_sizes, parameters)")
 
 
-__all__ = ["policy_from_export", "REGISTRY", "BatchedPolicy", "GenerationReport", "Optimizer", "OptimizerOptions",
-           "make_optimizer", "UnknownAlgorithmError"]
+__all__ = ["CMAES", "PGPE", "REGISTRY", "SNES", "BatchedPolicy", "ESOptimizer", "GenerationReport", "NeatOptimizer",
+           "OpenAIES", "Optimizer", "OptimizerOptions", "SepCMAES", "UnknownAlgorithmError", "make_optimizer",
+           "policy_from_export"]

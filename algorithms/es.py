@@ -323,14 +323,3 @@ class GaussianES(ESOptimizer):
         s._distribution = s._distribution.modified_copy(mu=self._tensor(state["mu"]), sigma=self._tensor(state["sigma"]))
         load_optimizer_state(s._optimizer, state["optimizer"])
 
-
-def _registry() -> dict[str, type[ESOptimizer]]:
-    from .cmaes import CMAES, SepCMAES
-    from .openai_es import OpenAIES
-    from .pgpe import PGPE
-    from .snes import SNES
-    return {cls.name: cls for cls in (CMAES, SepCMAES, OpenAIES, PGPE, SNES)}
-
-
-ES_ALGORITHMS: dict[str, type[Optimizer]] = _registry()
-"""Every ES by registry name."""

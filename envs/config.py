@@ -12,6 +12,19 @@ COLOR_IDS: dict[str, int] = {
 }
 """Entity type ids of the box colours (0 nothing, 1 wall, 2 agent)."""
 COLOR_NAMES: dict[int, str] = {v: k for k, v in COLOR_IDS.items()}
+COLOR_RGB: dict[int, tuple[int, int, int]] = {
+    3: (228, 26, 28),     # red
+    4: (55, 126, 184),    # blue
+    5: (60, 170, 60),     # green
+    6: (240, 200, 0),     # yellow
+    7: (152, 78, 163),    # purple
+    8: (235, 235, 235),   # white
+    9: (0, 185, 210),     # cyan
+    10: (25, 25, 25),     # black
+}
+"""Display colour of each colour id: ``render``, the figures and the recordings all draw with it."""
+UNKNOWN_RGB = (150, 150, 150)
+"""Display colour of an id without one of its own, and of an empty gripper."""
 NOTHING, WALL, AGENT = 0, 1, 2
 
 
@@ -43,6 +56,16 @@ TASKS: dict[str, Task] = {
     "cyan": Task(9, (9, 10)),
 }
 """The paper's tasks, by name."""
+
+
+def color_rgb(color_id: int) -> tuple[int, int, int]:
+    """The display colour of colour id ``color_id`` (``UNKNOWN_RGB`` for an id without one)."""
+    return COLOR_RGB.get(int(color_id), UNKNOWN_RGB)
+
+
+def task_rgb(name: str) -> tuple[int, int, int]:
+    """The display colour of a task: its target's (``UNKNOWN_RGB`` for a name not in ``TASKS``)."""
+    return color_rgb(TASKS[name].target) if name in TASKS else UNKNOWN_RGB
 
 
 def task_by_name(name: str) -> Task:

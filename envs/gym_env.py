@@ -27,7 +27,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from .config import COLOR_IDS, TASKS, ConfigError, ForagingConfig, Task, task_by_name
+from .config import TASKS, ConfigError, ForagingConfig, Task, color_rgb, task_by_name
 from .foraging import ForagingEnv, ForagingState
 
 ENV_ID = "lifelong_evo/SwarmForaging-v0"
@@ -103,13 +103,6 @@ def _numpy(t: torch.Tensor, dtype=None) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- rendering
-_PALETTE = {
-    COLOR_IDS["red"]: (220, 40, 40), COLOR_IDS["blue"]: (40, 80, 220), COLOR_IDS["green"]: (40, 170, 60),
-    COLOR_IDS["yellow"]: (230, 200, 30), COLOR_IDS["purple"]: (140, 50, 170), COLOR_IDS["white"]: (250, 250, 250),
-    COLOR_IDS["cyan"]: (40, 200, 210), COLOR_IDS["black"]: (20, 20, 20),
-}
-
-
 def render_arena(state: ForagingState, index: int, config: ForagingConfig, scale: int = 16) -> np.ndarray:
     """An ``(H, W, 3)`` uint8 picture of environment ``index`` of ``state`` (x down, y right; the
     drop zone x < 1 shaded at the top; agents grey disks with a heading tick and their load)."""
@@ -119,11 +112,11 @@ def render_arena(state: ForagingState, index: int, config: ForagingConfig, scale
     rows, cols = np.mgrid[0:side, 0:side]
     px, py = (rows + 0.5) / scale, (cols + 0.5) / scale               # pixel centres, arena units
     box_pos = state.box_pos[index].cpu().numpy()
-    colour = state.box_color[index].cpu().numpy()
+    box_color = state.box_color[index].cpu().numpy()
     present = state.box_present[index].cpu().numpy()
-    for (bx, by), col, here in zip(box_pos, colour, present):
+    for (bx, by), color, here in zip(box_pos, box_color, present):
         if here:
-            img[(np.abs(px - bx) < 0.3) & (np.abs(py - by) < 0.3)] = _PALETTE.get(int(col), (128, 128, 128))
+            img[(np.abs(px - bx) < 0.3) & (np.abs(py - by) < 0.3)] = color_rgb(color)
     pos = state.agent_pos[index].cpu().double().numpy()
     heading = np.deg2rad(state.heading[index].cpu().double().numpy())
     carrying = state.carrying[index].cpu().numpy()
@@ -131,7 +124,7 @@ def render_arena(state: ForagingState, index: int, config: ForagingConfig, scale
         d2 = (px - ax) ** 2 + (py - ay) ** 2
         img[d2 < 0.25] = (90, 90, 90)
         if load >= 0:
-            img[d2 < 0.04] = _PALETTE.get(int(colour[load]), (128, 128, 128))
+            img[d2 < 0.04] = color_rgb(box_color[load])
         # heading 0 points to the top (x decreasing), 90 to the left (the spec's directions)
         for t in np.linspace(0.3, 0.6, 4):
             r_, c_ = int((ax - t * math.cos(h)) * scale), int((ay - t * math.sin(h)) * scale)

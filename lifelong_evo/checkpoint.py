@@ -23,18 +23,20 @@ from typing import Any
 
 import torch
 
+from .errors import UserError
+
 HEADER = b"lifelong-evo checkpoint 2\n"
 _DIGEST_BYTES = 32
 _OLD_TAG_BYTES = 32  # the HMAC-SHA256 tag that preceded the torch file in the signed format
 _ZIP_START = b"PK\x03\x04"  # how a torch.save file begins
 
 
-class CheckpointError(RuntimeError):
-    pass
+class CheckpointError(UserError):
+    """A checkpoint that cannot be resumed from."""
 
 
 class CorruptCheckpointError(CheckpointError):
-    pass
+    """A checkpoint whose bytes are damaged or cut short."""
 
 
 def older_version_error(path: Path) -> CheckpointError:

@@ -1,10 +1,12 @@
 """The resolved configuration of a lifelong run: defaults, presets, TOML files and validation."""
 from __future__ import annotations
 
+import json
+import re
 import tomllib
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from envs import ConfigError, ForagingConfig
 
@@ -14,10 +16,11 @@ from .schedule import ScheduleError, arena_colors, parse_schedule
 
 @dataclass(frozen=True)
 class RunConfig:
-    """Everything that determines a lifelong run (the paper's main experiment by default)."""
+    """Everything that determines a lifelong run (the paper's main experiment by default). Each
+    field's docstring is its line in ``--help``."""
 
     algo: str = "neat"
-    """Optimiser from the registry: neat, cmaes, sep-cmaes, openai-es, pgpe, snes."""
+    """Optimiser from the registry: neat, cmaes, sep-cmaes, openai-es, pgpe, snes, or your own."""
     reg: float = 0.0
     """Regularisation strength lambda (0 = off): genetic distance for NEAT, L2/EWC for the ES."""
     schedule: str = "red-green-red"
@@ -35,17 +38,16 @@ class RunConfig:
     checkpoint_every: int = 10
     """Write a checkpoint every this many generations (and at every task end)."""
     device: str = "cpu"
-    """Torch device for environments and controllers."""
+    """Torch device for environments and controllers (cpu, cuda, ...)."""
     threads: int = 1
     """Torch CPU threads per evaluation thread (one is faster for these small tensors)."""
     eval_threads: int = 2
-    """Evaluation threads, each playing its own slice of the population with its own env (ask
-    and tell get threads x eval_threads torch threads); a fixed count, not the machine's core
-    count, because the count can change the rounding of a run's numbers. Use 1 on a GPU: the
-    threads share the one device and only add Python work (docs/performance.md)."""
+    """Evaluation threads, each playing a slice of the population with its own env; a fixed count,
+    not the machine's, because the count can change the rounding of a run's numbers; 1 on a GPU,
+    where threads share the one device (docs/performance.md)."""
     compile: bool = True
-    """torch.compile the environment's step: faster steps after compiling once per batch shape
-    (docs/performance.md); needs a C++ compiler."""
+    """torch.compile the environment's step: about 2.5x faster steps after 20-60 s of compiling per
+    batch shape; needs a C++ compiler (docs/performance.md)."""
     record: bool = True
     """Write recording.rrd (Rerun)."""
     episodes_every: int = 0
@@ -54,6 +56,32 @@ class RunConfig:
     """Environment overrides (ForagingConfig fields); the arena colours follow the schedule."""
     algo_options: dict = field(default_factory=dict)
     """Optimiser options, e.g. sigma, learning_rate, hidden, importance, references."""
+
+    SEED_SETTINGS: ClassVar[tuple[str, ...]] = ("seed",)
+    """Which repetition of a configuration a run is."""
+    SPEED_SETTINGS: ClassVar[tuple[str, ...]] = ("device", "threads", "eval_threads", "compile", "checkpoint_every")
+    """How a run is computed: they change at most the rounding of its numbers, so runs that differ
+    only in them (and in the seed) are one configuration; a resumed run keeps them."""
+    OUTPUT_SETTINGS: ClassVar[tuple[str, ...]] = ("record", "episodes_every")
+    """What a run records besides its numbers, which they never change: a resumed run may change them."""
+
+    @classmethod
+    def outcome_settings(cls, values: dict[str, Any]) -> dict[str, Any]:
+        """The settings among ``values`` (fields of a RunConfig, as ``to_dict`` or config.json
+        hold them) that a resumed run must keep, as JSON compares them (tuples are lists)."""
+        return {k: v for k, v in json.loads(json.dumps(values)).items() if k not in cls.OUTPUT_SETTINGS}
+
+    @classmethod
+    def configuration_settings(cls, values: dict[str, Any]) -> dict[str, Any]:
+        """The settings among ``values`` that make runs different configurations, not repetitions
+        of one: all but the seed, speed and output settings."""
+        ignored = (*cls.SEED_SETTINGS, *cls.SPEED_SETTINGS, *cls.OUTPUT_SETTINGS)
+        return {k: v for k, v in values.items() if k not in ignored}
+
+    def default_name(self) -> str:
+        """The run directory's name when none is given: ``neat-red-green-red-reg11-seed42``."""
+        schedule = re.sub(r"[^A-Za-z0-9]+", "-", self.schedule).strip("-")
+        return f"{self.algo}-{schedule}-reg{self.reg:g}-seed{self.seed}"
 
     def phases(self):
         return parse_schedule(self.schedule, self.generations)

@@ -16,6 +16,7 @@ from algorithms import make_optimizer, policy_from_export
 from . import checkpoint
 from .config import RunConfig, check_device
 from .episodes import play_episodes
+from .errors import UserError
 from .evaluate import evaluate, update_threads
 from .metrics import fitness_stats, retention, summarise
 from .progress import Progress
@@ -24,8 +25,8 @@ from .rundir import SPECIES_COLUMNS, MetricsWriter, RunDir, library_versions, me
 from .schedule import distinct_tasks
 
 
-class ResumeError(RuntimeError):
-    pass
+class ResumeError(UserError):
+    """A run directory that this configuration cannot continue."""
 
 
 @dataclass

@@ -131,6 +131,7 @@ def field_docs(cls: type) -> dict[str, str]:
     most derived class's where a subclass redeclares a field; the project's dataclasses document
     their fields this way, so the listing and the code read from one place."""
     docs: dict[str, str] = {}
+    names = {f.name for f in fields(cls)}
     for klass in reversed(cls.__mro__):
         if not is_dataclass(klass):
             continue
@@ -140,7 +141,7 @@ def field_docs(cls: type) -> dict[str, str]:
             continue
         body = tree.body[0].body
         for node, after in zip(body, body[1:]):
-            if (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
+            if (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and node.target.id in names
                     and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
                     and isinstance(after.value.value, str)):
                 docs[node.target.id] = " ".join(plain(after.value.value).split())

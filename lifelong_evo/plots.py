@@ -27,33 +27,12 @@ from typing import Any
 
 import numpy as np
 
-COLOUR_RGB: dict[int, tuple[int, int, int]] = {
-    3: (228, 26, 28),     # red
-    4: (55, 126, 184),    # blue
-    5: (60, 170, 60),     # green
-    6: (240, 200, 0),     # yellow
-    7: (152, 78, 163),    # purple
-    8: (235, 235, 235),   # white
-    9: (0, 185, 210),     # cyan
-    10: (25, 25, 25),     # black
-}
-"""Display colour of each colour id (envs.COLOR_IDS), shared by the figures and the recording."""
-GREY = (150, 150, 150)
+from envs import task_rgb
 
+from .errors import UserError
 
-def colour_rgb(colour_id: int) -> tuple[int, int, int]:
-    return COLOUR_RGB.get(int(colour_id), GREY)
-
-
-def task_rgb(task: str) -> tuple[int, int, int]:
-    """The colour of a task's target (``red`` -> red); grey for an unknown name."""
-    from envs import TASKS
-
-    return colour_rgb(TASKS[task].target) if task in TASKS else GREY
-
-
-def task_colour(task: str) -> tuple[float, float, float]:
-    """``task_rgb`` as matplotlib wants it (0..1)."""
+def task_color(task: str) -> tuple[float, float, float]:
+    """A task's display colour (``envs.task_rgb``) as matplotlib wants it (0..1)."""
     return tuple(c / 255 for c in task_rgb(task))
 
 
@@ -139,13 +118,11 @@ def is_run_dir(path: Path) -> bool:
 
 def find_run_dirs(paths) -> list[Path]:
     """Every run directory (config.json + summary.json) at or under ``paths``, sorted."""
-    from .cli import CliError
-
     found: set[Path] = set()
     for given in paths:
         path = Path(given)
         if not path.exists():
-            raise CliError(f"{path} does not exist: give run directories or folders that hold them")
+            raise UserError(f"{path} does not exist: give run directories or folders that hold them")
         if is_run_dir(path):
             found.add(path)
             continue
@@ -153,7 +130,7 @@ def find_run_dirs(paths) -> list[Path]:
             if is_run_dir(config.parent):
                 found.add(config.parent)
     if not found:
-        raise CliError(f"no run directory (config.json + summary.json) under {', '.join(map(str, paths))}: "
+        raise UserError(f"no run directory (config.json + summary.json) under {', '.join(map(str, paths))}: "
                        "run `python -m lifelong_evo run` first or check the path")
     return sorted(found)
 
@@ -259,10 +236,10 @@ def figure_retention(group: list[Run], level: str, path: Path) -> Path:
     label = {"best": "current C", "top": "top individual, current"}[current]
     fig, ax = plt.subplots(figsize=(9, 4.8), constrained_layout=True)
     for task, (generations, values) in current_by_task(group, current).items():
-        _band(ax, generations, values, task_colour(task), "-", f"{task}: {label}")
+        _band(ax, generations, values, task_color(task), "-", f"{task}: {label}")
     for task, (generations, values) in retention_by_task(group, level).items():
         marker = "o" if len(generations) < 40 else None
-        _band(ax, generations, values, task_colour(task), "--", f"{task}: {what.split(' R_')[0]}", marker=marker)
+        _band(ax, generations, values, task_color(task), "--", f"{task}: {what.split(' R_')[0]}", marker=marker)
     _drifts(ax, group[0])
     ax.set_xlabel("generation")
     ax.set_ylabel("fitness (reward per episode)")
@@ -302,7 +279,7 @@ def _shade_phases(ax, run: Run) -> None:
     for i in range(1, len(tasks) + 1):
         if i == len(tasks) or run.metrics[i]["task_index"] != run.metrics[start]["task_index"]:
             ax.axvspan(generations[start] - 0.5, generations[i - 1] + 0.5, ymin=0, ymax=0.025,
-                       color=task_colour(tasks[start]), alpha=0.8, linewidth=0)
+                       color=task_color(tasks[start]), alpha=0.8, linewidth=0)
             start = i
 
 
@@ -380,12 +357,10 @@ def plot_runs(paths, out: str | Path | None = None) -> list[Path]:
     import matplotlib
 
     matplotlib.use("Agg")
-    from .cli import CliError
-
     runs = [load_run(p) for p in find_run_dirs(paths)]
     runs = [r for r in runs if r.metrics]
     if not runs:
-        raise CliError("the runs have no metrics.csv rows yet: let a run write some generations first")
+        raise UserError("the runs have no metrics.csv rows yet: let a run write some generations first")
     groups = group_runs(runs)
     target = Path(out) if out is not None else Path(os.path.commonpath([r.path.resolve() for r in runs]))
     written = []

@@ -13,7 +13,7 @@ import argparse
 import re
 from pathlib import Path
 
-from .cli import CliError
+from .errors import UserError
 
 DEFAULT_SEED = 1_000_000
 
@@ -35,9 +35,9 @@ def find_controller(run_dir, which: str) -> tuple[Path, str]:
         if candidate.is_file():
             return candidate, which
     if not available:
-        raise CliError(f"{run_dir.path} has no stored controller yet (controllers/ is empty): "
+        raise UserError(f"{run_dir.path} has no stored controller yet (controllers/ is empty): "
                        "they are written at each task end")
-    raise CliError(f"no controller {which!r} in {folder}: use final, task<N> or one of {', '.join(available)}")
+    raise UserError(f"no controller {which!r} in {folder}: use final, task<N> or one of {', '.join(available)}")
 
 
 def replay(run: str | Path, task_name: str | None = None, episodes: int = 5, controller: str = "final",
@@ -53,15 +53,15 @@ def replay(run: str | Path, task_name: str | None = None, episodes: int = 5, con
 
     run_dir = RunDir(run)
     if not run_dir.path.is_dir():
-        raise CliError(f"{run_dir.path} does not exist: give a run directory (runs/<name>)")
+        raise UserError(f"{run_dir.path} does not exist: give a run directory (runs/<name>)")
     if episodes < 1:
-        raise CliError(f"--episodes must be >= 1, got {episodes}")
+        raise UserError(f"--episodes must be >= 1, got {episodes}")
     check_device(device)
     config = stored_config(run_dir)
     phases = config.phases()
     task_name = task_name or phases[-1].name
     if task_name not in TASKS:
-        raise CliError(f"unknown task {task_name!r}: choose one of {', '.join(TASKS)}")
+        raise UserError(f"unknown task {task_name!r}: choose one of {', '.join(TASKS)}")
     task = TASKS[task_name]
     env_config = config.env_config()
     env_config.check_task(task)  # ConfigError (one line) if the run's arena lacks its colours
@@ -70,7 +70,7 @@ def replay(run: str | Path, task_name: str | None = None, episodes: int = 5, con
     try:
         policy = policy_from_export(exported, device)
     except (ValueError, KeyError) as error:
-        raise CliError(f"{path} is not a usable controller ({error}): pick another with --controller") from None
+        raise UserError(f"{path} is not a usable controller ({error}): pick another with --controller") from None
     seeds = [seed + i for i in range(episodes)]
     played = play_episodes(policy, env_config, task, seeds, device)
     recording = None

@@ -47,8 +47,10 @@ from typing import Any
 
 import numpy as np
 
+from envs import COLOR_RGB, color_rgb, task_rgb
+
 from .episodes import Episode
-from .plots import GREY, colour_rgb, task_rgb
+from .errors import UserError
 from .recording import Recorder
 
 APPLICATION_ID = "lifelong_evo"
@@ -70,9 +72,7 @@ FLOOR_RGB = (70, 72, 80)
 def sink_mode() -> str:
     mode = os.environ.get(ENV_MODE, "").strip().lower() or "file"
     if mode not in MODES:
-        from .cli import CliError
-
-        raise CliError(f"{ENV_MODE}={mode!r} is not one of {', '.join(MODES)}: unset it to write recording.rrd")
+        raise UserError(f"{ENV_MODE}={mode!r} is not one of {', '.join(MODES)}: unset it to write recording.rrd")
     return mode
 
 
@@ -352,8 +352,6 @@ class RerunRecorder(Recorder):
 
 
 def _palette() -> np.ndarray:
-    """RGB by colour id (index 0: nothing carried -> grey)."""
-    top = 11
-    palette = np.array([colour_rgb(i) if i >= 3 else GREY for i in range(top + 1)], dtype=np.uint8)
-    palette[0] = GREY
-    return palette
+    """RGB by colour id, from 0 (nothing carried) to one past the highest known id, so that an
+    id clipped to the last entry shows as unknown."""
+    return np.array([color_rgb(i) for i in range(max(COLOR_RGB) + 2)], dtype=np.uint8)

@@ -21,10 +21,11 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from .checkpoint import atomic_write_bytes
+from .errors import UserError
 
 
-class RunDirError(RuntimeError):
-    pass
+class RunDirError(UserError):
+    """A run directory, or one of its files, that is missing or not what the contract says."""
 
 
 def library_versions() -> dict[str, str]:

@@ -67,8 +67,9 @@ from typing import Any
 from envs import ConfigError
 
 from .checkpoint import atomic_write_bytes
-from .cli import CliError, add_run_options, default_name
 from .config import PRESETS, RunConfig, load_toml, resolve
+from .errors import UserError
+from .flags import add_run_options
 from .options import flag, parse_value, plain, schema
 from .plots import IGNORED_CONFIG_KEYS
 from .report import duration
@@ -90,12 +91,7 @@ STATUSES = ("done", "failed", "pending")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.description = plain(__doc__)
-    add_run_options(parser)
-    for action in parser._actions:  # comma-separated values: parsed (and typed) by build_grid
-        if action.dest in RUN_FIELDS and action.const is None:
-            action.type = None
-            action.help += "; comma-separated values make an axis"
-    parser.set_defaults(preset=None)  # None: the file's preset, else paper
+    add_run_options(parser, axes=True)
     parser.add_argument("--name", default=None,
                         help="sweep directory name under --out (default: the --config file's name, "
                              "else one derived from the grid)")
@@ -139,7 +135,7 @@ def _coerce(key: str, value: Any, where: str) -> Any:
     try:
         return parse_value(_TYPES[key], value, flag(key))
     except ConfigError as error:
-        raise CliError(f"{error} ({where})") from None
+        raise UserError(f"{error} ({where})") from None
 
 
 def _split_flag(key: str, text: str) -> list[Any]:
@@ -153,7 +149,7 @@ def _split_flag(key: str, text: str) -> list[Any]:
     else:
         items = [p.strip() for p in text.split(",")]
     if any(not item for item in items):
-        raise CliError(f"--{key.replace('_', '-')} {text!r} has an empty value: write e.g. --seed 1,2,3")
+        raise UserError(f"--{key.replace('_', '-')} {text!r} has an empty value: write e.g. --seed 1,2,3")
     return [_coerce(key, item, "on the command line") for item in items]
 
 
@@ -162,7 +158,7 @@ def _split_assignment(item: str, what: str) -> tuple[str, list[str]]:
     is two lists); the values stay text, typed when each trial's configuration is validated."""
     key, sep, text = item.partition("=")
     if not sep or not key.strip():
-        raise CliError(f"{what} {item!r} is not KEY=VALUE (or KEY=V1,V2 for an axis)")
+        raise UserError(f"{what} {item!r} is not KEY=VALUE (or KEY=V1,V2 for an axis)")
     pieces, depth, start = [], 0, 0
     for i, char in enumerate(text):
         depth += {"[": 1, "]": -1}.get(char, 0)
@@ -178,7 +174,7 @@ def _file_layer(path: str) -> tuple[dict[str, list[Any]], dict[str, Any], str | 
     allowed = set(RUN_FIELDS) | set(_NESTED) | {"grid", "preset", "name"}
     unknown = sorted(set(values) - allowed)
     if unknown:
-        raise CliError(f"unknown key(s) {unknown} in {path}: use run options, [env], [algo_options], "
+        raise UserError(f"unknown key(s) {unknown} in {path}: use run options, [env], [algo_options], "
                        "[grid], preset and name")
     axes: dict[str, list[Any]] = {}
     fixed: dict[str, Any] = {}
@@ -188,7 +184,7 @@ def _file_layer(path: str) -> tuple[dict[str, list[Any]], dict[str, Any], str | 
         if in_grid:
             listed = value if isinstance(value, list) else [value]
             if not listed:
-                raise CliError(f"[grid] {key} in {path} is an empty list: give at least one value")
+                raise UserError(f"[grid] {key} in {path} is an empty list: give at least one value")
             typed = [_coerce(name, v, f"in {path}") if "." not in key else v for v in listed]
             if len(typed) > 1:
                 axes[key] = typed
@@ -202,7 +198,7 @@ def _file_layer(path: str) -> tuple[dict[str, list[Any]], dict[str, Any], str | 
             continue
         if key == "grid":
             if not isinstance(value, dict):
-                raise CliError(f"grid in {path} must be a table: write [grid] with lists, e.g. seed = [1, 2]")
+                raise UserError(f"grid in {path} must be a table: write [grid] with lists, e.g. seed = [1, 2]")
             for gkey, gvalue in value.items():
                 if gkey in _NESTED and isinstance(gvalue, dict):
                     for sub, subvalue in gvalue.items():
@@ -210,11 +206,11 @@ def _file_layer(path: str) -> tuple[dict[str, list[Any]], dict[str, Any], str | 
                 elif gkey in RUN_FIELDS:
                     put(gkey, gvalue, True)
                 else:
-                    raise CliError(f"unknown [grid] key {gkey!r} in {path}: use run options, "
+                    raise UserError(f"unknown [grid] key {gkey!r} in {path}: use run options, "
                                    "[grid.env] or [grid.algo_options]")
         elif key in _NESTED:
             if not isinstance(value, dict):
-                raise CliError(f"{key} in {path} must be a table: write [{key}]")
+                raise UserError(f"{key} in {path} must be a table: write [{key}]")
             for sub, subvalue in value.items():
                 put(f"{key}.{sub}", subvalue, False)
         else:
@@ -233,7 +229,7 @@ def build_grid(args: argparse.Namespace) -> Grid:
         axes.pop(key, None)
         fixed.pop(key, None)
         if len(values) != len(set(map(repr, values))):
-            raise CliError(f"{key} lists a value twice ({values}): give each value once")
+            raise UserError(f"{key} lists a value twice ({values}): give each value once")
         if len(values) > 1:
             axes[key] = values
         else:
@@ -249,16 +245,16 @@ def build_grid(args: argparse.Namespace) -> Grid:
             put(f"{nested}.{sub}", values)
     preset = args.preset or preset or "paper"
     if preset not in PRESETS:
-        raise CliError(f"unknown preset {preset!r}: choose one of {', '.join(PRESETS)}")
+        raise UserError(f"unknown preset {preset!r}: choose one of {', '.join(PRESETS)}")
     if args.gpus_per_trial < 0:
-        raise CliError(f"--gpus-per-trial must be >= 0, got {args.gpus_per_trial}")
+        raise UserError(f"--gpus-per-trial must be >= 0, got {args.gpus_per_trial}")
     if args.gpus_per_trial > 0:
         devices = axes.get("device", [fixed.get("device", "cuda")])
         if any(not str(d).startswith("cuda") for d in devices):
-            raise CliError("--gpus-per-trial runs trials on cuda: drop --device or set it to cuda")
+            raise UserError("--gpus-per-trial runs trials on cuda: drop --device or set it to cuda")
         if "device" not in axes:
             fixed["device"] = "cuda"
-    first = ["algo", "schedule", "reg"]  # as in cli.default_name
+    first = ["algo", "schedule", "reg"]  # as in RunConfig.default_name
     order = [*first, *(k for k in RUN_FIELDS if k not in first and k != "seed"),
              *sorted(k for k in axes if "." in k), "seed"]
     axes = {k: axes[k] for k in order if k in axes}
@@ -272,7 +268,7 @@ def build_grid(args: argparse.Namespace) -> Grid:
     seen: dict[str, Trial] = {}
     for trial in grid.trials:
         if trial.name in seen:
-            raise CliError(f"trials {seen[trial.name].values} and {trial.values} are both named {trial.name!r}: "
+            raise UserError(f"trials {seen[trial.name].values} and {trial.values} are both named {trial.name!r}: "
                            "give the axis values distinct spellings")
         seen[trial.name] = trial
     return grid
@@ -291,7 +287,7 @@ def _resolve(preset: str, values: dict[str, Any], axis_values: dict[str, Any], m
         return resolve(preset, {}, overrides, machine=machine)
     except ConfigError as error:
         where = f" (trial {axis_values})" if axis_values else ""
-        raise CliError(f"{error}{where}") from None
+        raise UserError(f"{error}{where}") from None
 
 
 def _typed_value(config: RunConfig, key: str) -> Any:
@@ -306,9 +302,9 @@ def _slug(value: Any) -> str:
 
 
 def trial_name(values: dict[str, Any], config: RunConfig) -> str:
-    """From the varying axes, e.g. ``neat-reg5-seed13``; a grid without axes: ``cli.default_name``."""
+    """From the varying axes, e.g. ``neat-reg5-seed13``; a grid without axes: ``RunConfig.default_name``."""
     if not values:
-        return default_name(config)
+        return config.default_name()
     parts = []
     for key, value in values.items():
         if key in ("algo", "schedule", "device"):
@@ -572,7 +568,7 @@ def _start_ray(args: argparse.Namespace):
         try:
             ray.init(address=address, runtime_env={"py_modules": modules, "excludes": ["__pycache__"]}, **quiet)
         except (ConnectionError, RuntimeError, ray.exceptions.RayError) as error:
-            raise CliError(f"could not join the Ray cluster at {args.address}: {_one_line(error)}") from None
+            raise UserError(f"could not join the Ray cluster at {args.address}: {_one_line(error)}") from None
     else:
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
         # "local": always a new instance, never a cluster that `ray start` left running on this machine
@@ -621,7 +617,7 @@ def _native_stderr_silenced():
 
 def _check_cluster(given: str) -> str:
     """The HOST:PORT of the cluster ``--address`` names, once it answers and accepts this
-    machine's token; otherwise CliError with the fix, within seconds (Ray itself would retry
+    machine's token; otherwise UserError with the fix, within seconds (Ray itself would retry
     for 20 s and end in a traceback). Turns token authentication on where a token is found."""
     from ray._private.authentication.authentication_token_setup import maybe_enable_token_auth_if_token_available
     from ray._private.services import canonicalize_bootstrap_address
@@ -632,13 +628,13 @@ def _check_cluster(given: str) -> str:
     try:
         address = canonicalize_bootstrap_address(given)
     except (ConnectionError, ValueError) as error:
-        raise CliError(f"--address {given}: {_one_line(error)}: {start_hint}") from None
+        raise UserError(f"--address {given}: {_one_line(error)}: {start_hint}") from None
     host, _, port = address.rpartition(":")
     try:
         socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT_S).close()
     except (OSError, ValueError) as error:
         reason = getattr(error, "strerror", None) or str(error) or type(error).__name__
-        raise CliError(f"no Ray cluster answers at {given} ({reason}): {start_hint}") from None
+        raise UserError(f"no Ray cluster answers at {given} ({reason}): {start_hint}") from None
     # an explicit address never turns token authentication on in Ray, while `ray start` does
     maybe_enable_token_auth_if_token_available(warn_if_disabled=False)
     copy = ("copy the head node's ~/.ray/auth_token to ~/.ray/auth_token on this machine (or set RAY_AUTH_TOKEN "
@@ -646,19 +642,19 @@ def _check_cluster(given: str) -> str:
     has_token = AuthenticationTokenLoader.instance().has_token(ignore_auth_mode=True)
     token_mode = get_authentication_mode() == AuthenticationMode.TOKEN
     if token_mode and not has_token:  # Ray's client would exit the process on its first request
-        raise CliError(f"RAY_AUTH_MODE is token and this machine has no Ray token: {copy}")
+        raise UserError(f"RAY_AUTH_MODE is token and this machine has no Ray token: {copy}")
     try:
         with _native_stderr_silenced():
             GcsClient(address=address)
     except AuthenticationError:
         if not has_token:
-            raise CliError(f"the Ray cluster at {given} requires its token and this machine has none: {copy}") from None
+            raise UserError(f"the Ray cluster at {given} requires its token and this machine has none: {copy}") from None
         if not token_mode:
-            raise CliError(f"the Ray cluster at {given} requires its token and RAY_AUTH_MODE is "
+            raise UserError(f"the Ray cluster at {given} requires its token and RAY_AUTH_MODE is "
                            f"{os.environ.get('RAY_AUTH_MODE')!r} here: unset RAY_AUTH_MODE or set it to token") from None
-        raise CliError(f"the Ray cluster at {given} rejected this machine's token: {copy}") from None
+        raise UserError(f"the Ray cluster at {given} rejected this machine's token: {copy}") from None
     except RpcError as error:
-        raise CliError(f"{given} does not answer as a Ray cluster ({_one_line(error)}): {start_hint}") from None
+        raise UserError(f"{given} does not answer as a Ray cluster ({_one_line(error)}): {start_hint}") from None
     return address
 
 
@@ -670,9 +666,9 @@ def main(args: argparse.Namespace) -> int:
     grid = build_grid(args)
     grid.name = grid.name or default_sweep_name(grid)
     if args.workers is not None and args.workers < 1:
-        raise CliError(f"--workers must be >= 1, got {args.workers}")
+        raise UserError(f"--workers must be >= 1, got {args.workers}")
     if args.retries < 0:
-        raise CliError(f"--retries must be >= 0, got {args.retries}")
+        raise UserError(f"--retries must be >= 0, got {args.retries}")
     sweep_dir = (Path(args.out) / grid.name).resolve()
     to_run: list[Trial] = []
     resuming: set[str] = set()
@@ -736,11 +732,11 @@ def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep
         messages.enter_context(_ray_messages_to(sweep_dir / RAY_LOG))
         resources = ray.cluster_resources()
         if args.gpus_per_trial > resources.get("GPU", 0):
-            raise CliError(f"the Ray cluster has {resources.get('GPU', 0):g} GPU(s), a trial asks for "
+            raise UserError(f"the Ray cluster has {resources.get('GPU', 0):g} GPU(s), a trial asks for "
                            f"{args.gpus_per_trial:g}: drop --gpus-per-trial or add GPU nodes")
         widest = max(_cpus(t.config) for t in to_run)
         if widest > resources.get("CPU", 0):
-            raise CliError(f"the Ray cluster has {resources.get('CPU', 0):g} CPUs, a trial asks for {widest} "
+            raise UserError(f"the Ray cluster has {resources.get('CPU', 0):g} CPUs, a trial asks for {widest} "
                            "(--threads times --eval-threads): lower them")
         where = f"the Ray cluster at {args.address}" if args.address else "a local Ray"
         logs = "/tmp/ray/session_latest/logs" + (" on each node" if args.address else "")

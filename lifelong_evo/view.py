@@ -28,7 +28,7 @@ import tempfile
 from pathlib import Path
 from urllib.parse import quote
 
-from .cli import CliError
+from .errors import UserError
 
 HOST = "127.0.0.1"
 
@@ -38,16 +38,16 @@ def recording_files(target: str | Path, replays: bool = False) -> list[Path]:
     path = Path(target)
     if path.is_file():
         if path.suffix != ".rrd":
-            raise CliError(f"{path} is not an .rrd file: give a run directory or a recording.rrd")
+            raise UserError(f"{path} is not an .rrd file: give a run directory or a recording.rrd")
         return [path]
     if not path.is_dir():
-        raise CliError(f"{path} does not exist: give a run directory (runs/<name>) or an .rrd file")
+        raise UserError(f"{path} does not exist: give a run directory (runs/<name>) or an .rrd file")
     files = ([path / "recording.rrd"] if (path / "recording.rrd").is_file() else []) \
         + sorted(path.glob("recording-resumed-*.rrd"))
     if replays:
         files += sorted(path.glob("replay-*.rrd"))
     if not files:
-        raise CliError(f"{path} has no recording.rrd: the run was made with --no-record (run it again without), "
+        raise UserError(f"{path} has no recording.rrd: the run was made with --no-record (run it again without), "
                        f"or record fresh episodes with `python -m lifelong_evo replay {path}`")
     return files
 
@@ -67,7 +67,7 @@ def rerun_executable() -> str:
     beside = Path(sys.executable).parent / "rerun"
     found = str(beside) if beside.is_file() else shutil.which("rerun")
     if not found:
-        raise CliError("the `rerun` viewer is not installed: pip install 'rerun-sdk>=0.41,<0.42'")
+        raise UserError("the `rerun` viewer is not installed: pip install 'rerun-sdk>=0.41,<0.42'")
     return found
 
 
@@ -104,12 +104,12 @@ def check_ports(port: int, grpc_port: int) -> None:
     """Refuse ports the web viewer could not listen on, before any address is printed."""
     for flag, number in (("--port", port), ("--grpc-port", grpc_port)):
         if not 0 < number < 65536:
-            raise CliError(f"{flag} {number} is not a port: give a number from 1 to 65535")
+            raise UserError(f"{flag} {number} is not a port: give a number from 1 to 65535")
     if port == grpc_port:
-        raise CliError(f"--port and --grpc-port are both {port}: give two different ports")
+        raise UserError(f"--port and --grpc-port are both {port}: give two different ports")
     for flag, number in (("--port", port), ("--grpc-port", grpc_port)):
         if port_in_use(number):
-            raise CliError(f"port {number} on {HOST} is in use (by another viewer or program): stop it, "
+            raise UserError(f"port {number} on {HOST} is in use (by another viewer or program): stop it, "
                            f"or choose a free port with {flag}")
 
 
@@ -174,6 +174,6 @@ def main(args: argparse.Namespace) -> int:
                 process.terminate()
                 process.wait()
         if code != 0 and not args.verbose:
-            raise CliError(f"the rerun viewer stopped with exit code {code}: {last_log_line(log)} "
+            raise UserError(f"the rerun viewer stopped with exit code {code}: {last_log_line(log)} "
                            "(run again with --verbose for its whole log)")
         return code

@@ -5,11 +5,12 @@ import pytest
 import torch
 from evotorch.algorithms import CMAES as EvoCMAES
 
-from algorithms.es import ES_ALGORITHMS
+from algorithms import REGISTRY, ESOptimizer
 from algorithms.mlp import MLPPolicy
 from algorithms.regularizers import (FISHER_WINDOW, Regularizer, gaussian_sensitivity, penalty,
                                      regularised_fitness)
 
+ES_ALGORITHMS = {name: cls for name, cls in REGISTRY.items() if issubclass(cls, ESOptimizer)}
 ALGOS = sorted(ES_ALGORITHMS)
 SMALL = {"obs_dim": 6, "hidden": (8,), "population_size": 20}
 

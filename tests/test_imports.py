@@ -1,0 +1,98 @@
+"""The layering, read from the source with ``ast`` (nothing is imported): the environment and the
+optimisers never import the lifelong tools, and no module of the project imports, directly or
+through others, a module that imports it, counting the imports inside functions too."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("envs", "algorithms", "lifelong_evo")
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+MODULES = {_module_name(path): path for package in PACKAGES for path in sorted((ROOT / package).glob("*.py"))}
+
+
+def _imports(name: str) -> set[str]:
+    """The project modules that module ``name`` imports, anywhere in its source."""
+    path = MODULES[name]
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[:len(package.split(".")) - node.level + 1]
+                base = ".".join([*anchor, *([base] if base else [])])
+            # ``from package import module`` imports the module; ``from module import name`` the module
+            targets = [f"{base}.{alias.name}" if f"{base}.{alias.name}" in MODULES else base for alias in node.names]
+        else:
+            continue
+        for target in targets:
+            while target and target not in MODULES:  # ``import lifelong_evo.cli.main`` is lifelong_evo.cli
+                target = target.rpartition(".")[0]
+            if target and target != name:
+                found.add(target)
+    return found
+
+
+GRAPH = {name: _imports(name) for name in MODULES}
+
+
+def test_the_environment_and_the_optimisers_never_import_the_lifelong_tools():
+    offending = {name: sorted(t for t in targets if t.split(".")[0] == "lifelong_evo")
+                 for name, targets in GRAPH.items() if name.split(".")[0] in ("envs", "algorithms")}
+    assert not {k: v for k, v in offending.items() if v}
+    assert not [t for t in GRAPH["envs"] | set().union(*(GRAPH[n] for n in MODULES if n.startswith("envs.")))
+                if t.split(".")[0] == "algorithms"], "the environment knows nothing of the optimisers"
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    components = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for target in sorted(graph[node]):
+            if target not in index:
+                visit(target)
+                low[node] = min(low[node], low[target])
+            elif target in on_stack:
+                low[node] = min(low[node], index[target])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                components.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return components
+
+
+def test_no_import_cycles():
+    assert _cycles(GRAPH) == []
+
+
+def test_the_cycle_finder_finds_one():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert "lifelong_evo.loop" in GRAPH["lifelong_evo.cli"] and "algorithms.es" in GRAPH["algorithms.cmaes"]
