@@ -106,7 +106,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.resume:
         # the command that started the run, plus --resume, names the same directory
         run_dir = RunDir(Path(args.out) / (args.name or resolve_run_config(args).default_name()))
-        config = resumed_config(args, loop.stored_config(run_dir), run_dir.path)
+        config = resumed_config(args, run_dir.read_config(), run_dir.path)
     else:
         config = resolve_run_config(args)
         run_dir = RunDir(Path(args.out) / (args.name or config.default_name()))

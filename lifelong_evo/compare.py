@@ -1,9 +1,8 @@
 """``python -m lifelong_evo compare RUN_OR_DIR... [--out DIR]``: configurations side by side.
 
 Finds every run directory (config.json + summary.json) at or under the given paths (so a sweep
-folder works), groups the runs by configuration (config.json without seed, run name, library
-versions and the options that do not change results: record, threads, eval_threads, device, checkpoint_every,
-episodes_every) and writes, to ``--out`` (default: the one folder given, else ``comparison/``):
+folder works), groups the runs by configuration (``rundir.group_runs``: runs that differ only in
+the seed, the speed settings and the output settings of ``RunConfig`` are one) and writes, to ``--out`` (default: the one folder given, else ``comparison/``):
 
 ``comparison.md``    an overview (one line per configuration), then per configuration the paper's
                      table: current performance C per phase (and C_top, the top individual's),
@@ -28,7 +27,9 @@ from typing import Any
 
 import numpy as np
 
-from .plots import Run, describe_config, find_run_dirs, group_runs, is_run_dir, load_run
+from .plots import CONFIG_COLORS, band, draw_drifts, save, shade_phases, stack
+from .rundir import Run, describe_config, group_runs, is_run_dir, load_runs
+from .schedule import parse_schedule
 
 RESAMPLES = 2000
 BOOTSTRAP_SEED = 0
@@ -83,7 +84,7 @@ def _fmt(mean: float, low: float, high: float, n: int) -> str:
 def compare_table(paths) -> tuple[list[dict[str, Any]], str]:
     """Rows (one per configuration and metric: see CSV_COLUMNS; ``values`` is the list over
     seeds) and the markdown report, for every run at or under ``paths``."""
-    runs = [load_run(p, with_metrics=False) for p in find_run_dirs(paths)]
+    runs = load_runs(paths, with_metrics=False)
     groups = _sorted_groups(group_runs(runs))
     configs = [g[0].config for g in groups]
     rows: list[dict[str, Any]] = []
@@ -171,10 +172,7 @@ def overlay_figures(paths, out: Path) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .plots import CONFIG_COLOURS, _band, _drifts, _save, _shade_phases, stack
-    from .schedule import parse_schedule
-
-    runs = [r for r in (load_run(p) for p in find_run_dirs(paths)) if r.metrics]
+    runs = [r for r in load_runs(paths) if r.metrics]
     by_schedule: dict[str, list[list[Run]]] = {}
     for group in _sorted_groups(group_runs(runs)):
         config = group[0].config
@@ -187,9 +185,9 @@ def overlay_figures(paths, out: Path) -> list[Path]:
         for k, group in enumerate(groups):
             label = f"{describe_config(group[0].config, configs)} (n={len(group)})"
             generations, values = stack(group, "best")
-            _band(ax, generations, values, CONFIG_COLOURS[k % len(CONFIG_COLOURS)], "-", label)
-        _drifts(ax, groups[0][0])
-        _shade_phases(ax, groups[0][0])
+            band(ax, generations, values, CONFIG_COLORS[k % len(CONFIG_COLORS)], "-", label)
+        draw_drifts(ax, groups[0][0])
+        shade_phases(ax, groups[0][0])
         schedule = str(groups[0][0].config.get("schedule", ""))
         ax.set_title(f"Current performance C (best of the population on the current task), schedule {schedule}\n"
                      "mean over seeds, band: min-max; coloured strip: the current task", fontsize=10)
@@ -199,7 +197,7 @@ def overlay_figures(paths, out: Path) -> list[Path]:
         ax.grid(alpha=0.25)
         ax.legend(fontsize=8, loc="best")
         suffix = "" if len(by_schedule) == 1 else f"-{index}-" + re.sub(r"[^A-Za-z0-9]+", "-", schedule).strip("-")
-        written.append(_save(fig, out / f"comparison-current{suffix}.png"))
+        written.append(save(fig, out / f"comparison-current{suffix}.png"))
     return written
 
 

@@ -3,7 +3,6 @@ ask, evaluate on the current task (and on earlier tasks every few generations, i
 batched call), regularise, tell, record; checkpoints at intervals and at every task end."""
 from __future__ import annotations
 
-import json
 import sys
 import time
 from dataclasses import dataclass, field
@@ -21,7 +20,7 @@ from .evaluate import evaluate, update_threads
 from .metrics import fitness_stats, retention, summarise
 from .progress import Progress
 from .recording import NullRecorder, Recorder
-from .rundir import SPECIES_COLUMNS, MetricsWriter, RunDir, library_versions, metric_columns, read_json, write_json
+from .rundir import SPECIES_COLUMNS, MetricsWriter, RunDir, metric_columns, read_json
 from .schedule import distinct_tasks
 
 
@@ -61,8 +60,7 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
         state = _resume(config, run_dir, optimizer, generator)
     else:
         run_dir.create(overwrite)
-        write_json(run_dir.config, {**config.to_dict(), "env_resolved": env_config.to_dict(),
-                                    "versions": library_versions()})
+        run_dir.write_config(config)
     has_centre = optimizer.centre_index is not None
     columns = metric_columns([t.name for t in tasks], has_species=config.algo == "neat", has_centre=has_centre,
                              diagnostics=optimizer.diagnostics)
@@ -140,8 +138,8 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
                                task_end=last)
                 if last or generation % config.checkpoint_every == 0:
                     _save_checkpoint(config, run_dir, optimizer, generator, state)
-                    write_json(run_dir.summary, summarise(phase_names, state.phase_ends, state.initial,
-                                                          state.wall_time_s, has_centre))
+                    run_dir.write_summary(summarise(phase_names, state.phase_ends, state.initial,
+                                                    state.wall_time_s, has_centre))
     finally:
         writer.close()
         if species_log is not None:
@@ -149,7 +147,7 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
         recorder.close()
         display.close()
     summary = summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s, has_centre)
-    write_json(run_dir.summary, summary)
+    run_dir.write_summary(summary)
     return summary
 
 
@@ -161,8 +159,7 @@ def _finish_phase(run_dir, optimizer, state, phase_index, name, scores, exported
     if optimizer.centre_index is not None:
         end["R_centre"] = {n: s["centre"] for n, s in scores.items()}
     state.phase_ends.append(end)
-    write_json(run_dir.controllers / f"task{phase_index}-{name}-top.json", exported)
-    write_json(run_dir.controllers / "final-top.json", exported)
+    run_dir.write_top_controller(phase_index, name, exported)
     optimizer.end_task()
 
 
@@ -182,14 +179,12 @@ def _checkpoint_payload(config, optimizer, generator, state) -> dict[str, Any]:
 
 
 def _save_checkpoint(config, run_dir, optimizer, generator, state) -> None:
-    checkpoint.save(run_dir.checkpoint_path(state.generation), _checkpoint_payload(config, optimizer, generator, state))
-    for old in run_dir.checkpoint_files()[:-2]:  # keep the last two
-        old.unlink()
+    run_dir.save_checkpoint(state.generation, _checkpoint_payload(config, optimizer, generator, state))
 
 
 def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopState:
     stored = read_json(run_dir.config)
-    mine = _outcome_settings(config.to_dict())
+    mine = RunConfig.outcome_settings(config.to_dict())
     different = sorted(k for k in mine if stored.get(k) != mine[k])
     if different:
         raise ResumeError(f"{run_dir.path} was run with other settings ({', '.join(different)} differ): "
@@ -207,23 +202,10 @@ def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopSta
         raise checkpoint.CorruptCheckpointError(f"{error}; {advice}") from None
     if "pickle" in (payload.get("optimizer") or {}):
         raise checkpoint.older_version_error(path)
-    if _outcome_settings(payload.get("config") or {}) != mine:
+    if RunConfig.outcome_settings(payload.get("config") or {}) != mine:
         raise ResumeError(f"checkpoint {path} belongs to another configuration: delete it or start a new run")
     optimizer.load_state_dict(payload["optimizer"])
     generator.set_state(payload["generator"])
     loop = payload["loop"]
     return LoopState(generation=loop["generation"], phase_ends=loop["phase_ends"], initial=loop["initial"],
                      wall_time_s=loop["wall_time_s"])
-
-
-def _outcome_settings(values: dict[str, Any]) -> dict[str, Any]:
-    """The settings that change a run's numbers, as JSON sees them (tuples become lists);
-    recording options may change on resume."""
-    return {k: v for k, v in json.loads(json.dumps(values)).items() if k not in ("record", "episodes_every")}
-
-
-def stored_config(run_dir: RunDir) -> RunConfig:
-    """The configuration a run directory was created with."""
-    values = read_json(run_dir.config)
-    return RunConfig.from_dict({k: v for k, v in values.items() if k not in ("env_resolved", "versions")},
-                               str(run_dir.config))

@@ -1,6 +1,7 @@
 """``python -m lifelong_evo plot RUN... [--out DIR]``: the paper's figures as PNG (matplotlib, Agg).
 
-For each group of runs that share a configuration (config.json without seed and name):
+It reads run directories through ``lifelong_evo.rundir`` and only draws. For each group of runs
+that share a configuration (``rundir.group_runs``: repetitions that differ in seed or speed settings):
 
 ``<prefix>-retention-pop.png``  current performance C (solid) and population retention R_pop
                                  (dashed, dots where measured) per task colour over generations;
@@ -18,10 +19,8 @@ folder that holds them all (a single run's directory; a sweep's directory for it
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import re
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -30,126 +29,12 @@ import numpy as np
 from envs import task_rgb
 
 from .errors import UserError
+from .rundir import Run, describe_config, group_runs, load_runs
+
 
 def task_color(task: str) -> tuple[float, float, float]:
     """A task's display colour (``envs.task_rgb``) as matplotlib wants it (0..1)."""
     return tuple(c / 255 for c in task_rgb(task))
-
-
-# ---------------------------------------------------------------------------------------------
-# Reading run directories
-
-
-@dataclass
-class Run:
-    """What the figures and the comparison read from one run directory."""
-
-    path: Path
-    config: dict[str, Any]
-    summary: dict[str, Any]
-    metrics: list[dict[str, str]] = field(default_factory=list)
-
-    @property
-    def seed(self):
-        return self.config.get("seed")
-
-    @property
-    def key(self) -> str:
-        return config_key(self.config)
-
-    def column(self, name: str) -> np.ndarray:
-        """A metrics.csv column as floats over generations (NaN where empty or absent)."""
-        return np.array([_float(row.get(name, "")) for row in self.metrics], dtype=float)
-
-    @property
-    def generations(self) -> np.ndarray:
-        return np.array([int(row["generation"]) for row in self.metrics], dtype=int)
-
-    @property
-    def tasks(self) -> list[str]:
-        """The tasks of the metrics rows, one per generation."""
-        return [row["task"] for row in self.metrics]
-
-    def species_rows(self) -> list[tuple[int, int, int]] | None:
-        path = self.path / "species.csv"
-        if not path.exists():
-            return None
-        from .rundir import SPECIES_COLUMNS, read_metrics
-
-        # checked as metrics.csv is: a broken line is an error naming it, a half-written last one dropped
-        return [(int(row["generation"]), int(row["species_id"]), int(row["size"]))
-                for row in read_metrics(path, required=tuple(SPECIES_COLUMNS))]
-
-
-def _float(text: str) -> float:
-    return float(text) if text else float("nan")  # read_metrics let only numbers and blanks through
-
-
-IGNORED_CONFIG_KEYS = ("seed", "versions", "name", "record", "threads", "eval_threads", "compile", "device",
-                       "checkpoint_every", "episodes_every")
-"""config.json keys that do not make two runs different configurations: the seed, and the speed
-and output settings (these change at most the rounding of a run's numbers)."""
-
-
-def config_key(config: dict[str, Any]) -> str:
-    """A canonical string of a configuration, seed (and library versions) left out."""
-    return json.dumps({k: v for k, v in config.items() if k not in IGNORED_CONFIG_KEYS}, sort_keys=True)
-
-
-def describe_config(config: dict[str, Any], others: list[dict[str, Any]] | None = None) -> str:
-    """A short label: algorithm, lambda, schedule, and whatever else differs from ``others``."""
-    label = f"{config.get('algo')} reg={config.get('reg', 0):g} {config.get('schedule')}"
-    if others:
-        plain = {"algo", "reg", "schedule", "env_resolved", *IGNORED_CONFIG_KEYS}
-        differing = sorted(k for k in config if k not in plain
-                           and any(o.get(k) != config.get(k) for o in others))
-        extra = []
-        for key in differing:
-            value = config[key]
-            extra.append(f"{key}={json.dumps(value, sort_keys=True) if isinstance(value, dict) else value}")
-        if extra:
-            label += " " + " ".join(extra)
-    return label
-
-
-def is_run_dir(path: Path) -> bool:
-    return (path / "config.json").is_file() and (path / "summary.json").is_file()
-
-
-def find_run_dirs(paths) -> list[Path]:
-    """Every run directory (config.json + summary.json) at or under ``paths``, sorted."""
-    found: set[Path] = set()
-    for given in paths:
-        path = Path(given)
-        if not path.exists():
-            raise UserError(f"{path} does not exist: give run directories or folders that hold them")
-        if is_run_dir(path):
-            found.add(path)
-            continue
-        for config in path.rglob("config.json"):
-            if is_run_dir(config.parent):
-                found.add(config.parent)
-    if not found:
-        raise UserError(f"no run directory (config.json + summary.json) under {', '.join(map(str, paths))}: "
-                       "run `python -m lifelong_evo run` first or check the path")
-    return sorted(found)
-
-
-def load_run(path: Path, with_metrics: bool = True) -> Run:
-    from .rundir import read_json, read_metrics
-
-    config = read_json(path / "config.json")
-    summary = read_json(path / "summary.json")
-    metrics = read_metrics(path / "metrics.csv") if with_metrics and (path / "metrics.csv").exists() else []
-    return Run(path=path, config=config, summary=summary, metrics=metrics)
-
-
-def group_runs(runs: list[Run]) -> list[list[Run]]:
-    """Runs grouped by configuration (in order of first appearance), each group sorted by seed."""
-    groups: dict[str, list[Run]] = {}
-    for run in runs:
-        groups.setdefault(run.key, []).append(run)
-    return [sorted(group, key=lambda r: (str(r.seed), str(r.path))) for group in groups.values()]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -197,7 +82,7 @@ def retention_by_task(group: list[Run], level: str) -> dict[str, tuple[np.ndarra
     return out
 
 
-def _band(ax, generations, values, colour, linestyle, label, marker=None):
+def band(ax, generations, values, color, linestyle, label, marker=None):
     """Mean over seeds (rows) and, with several seeds, a min-max band."""
     with np.errstate(all="ignore"):
         import warnings
@@ -206,13 +91,13 @@ def _band(ax, generations, values, colour, linestyle, label, marker=None):
             warnings.simplefilter("ignore", RuntimeWarning)
             mean = np.nanmean(values, axis=0)
             low, high = np.nanmin(values, axis=0), np.nanmax(values, axis=0)
-    ax.plot(generations, mean, color=colour, linestyle=linestyle, label=label, linewidth=1.6, marker=marker,
+    ax.plot(generations, mean, color=color, linestyle=linestyle, label=label, linewidth=1.6, marker=marker,
             markersize=3)
     if values.shape[0] > 1:
-        ax.fill_between(generations, low, high, color=colour, alpha=0.18, linewidth=0)
+        ax.fill_between(generations, low, high, color=color, alpha=0.18, linewidth=0)
 
 
-def _drifts(ax, run: Run) -> None:
+def draw_drifts(ax, run: Run) -> None:
     for i, g in enumerate(drift_generations(run)):
         ax.axvline(g - 0.5, color="0.3", linestyle=(0, (6, 4)), linewidth=1.1, label="drift" if i == 0 else None)
 
@@ -236,17 +121,17 @@ def figure_retention(group: list[Run], level: str, path: Path) -> Path:
     label = {"best": "current C", "top": "top individual, current"}[current]
     fig, ax = plt.subplots(figsize=(9, 4.8), constrained_layout=True)
     for task, (generations, values) in current_by_task(group, current).items():
-        _band(ax, generations, values, task_color(task), "-", f"{task}: {label}")
+        band(ax, generations, values, task_color(task), "-", f"{task}: {label}")
     for task, (generations, values) in retention_by_task(group, level).items():
         marker = "o" if len(generations) < 40 else None
-        _band(ax, generations, values, task_color(task), "--", f"{task}: {what.split(' R_')[0]}", marker=marker)
-    _drifts(ax, group[0])
+        band(ax, generations, values, task_color(task), "--", f"{task}: {what.split(' R_')[0]}", marker=marker)
+    draw_drifts(ax, group[0])
     ax.set_xlabel("generation")
     ax.set_ylabel("fitness (reward per episode)")
     ax.set_title(f"Current performance and {what}\n{_title(group)}", fontsize=10)
     ax.grid(alpha=0.25)
     ax.legend(fontsize=8, loc="best")
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def figure_species(group: list[Run], path: Path) -> Path | None:
@@ -258,9 +143,9 @@ def figure_species(group: list[Run], path: Path) -> Path | None:
     if np.all(np.isnan(values)):
         return None
     fig, ax = plt.subplots(figsize=(9, 3.6), constrained_layout=True)
-    _band(ax, generations, values, "0.2", "-", "species")
-    _drifts(ax, group[0])
-    _shade_phases(ax, group[0])
+    band(ax, generations, values, "0.2", "-", "species")
+    draw_drifts(ax, group[0])
+    shade_phases(ax, group[0])
     ax.set_xlabel("generation")
     ax.set_ylabel("species")
     ax.margins(y=0.08)
@@ -268,10 +153,10 @@ def figure_species(group: list[Run], path: Path) -> Path | None:
     ax.set_title(f"Number of species\n{_title(group)}", fontsize=10)
     ax.grid(alpha=0.25)
     ax.legend(fontsize=8, loc="best")
-    return _save(fig, path)
+    return save(fig, path)
 
 
-def _shade_phases(ax, run: Run) -> None:
+def shade_phases(ax, run: Run) -> None:
     """A faint band of each phase's task colour along the bottom of the axes."""
     generations = run.generations
     tasks = run.tasks
@@ -298,19 +183,19 @@ def figure_lifespans(run: Run, path: Path) -> Path | None:
     order = sorted(by_species, key=lambda s: (min(g for g, _ in by_species[s]), s))
     biggest = max(size for _, _, size in rows)
     fig, ax = plt.subplots(figsize=(9, max(3.0, min(12.0, 1.2 + 0.22 * len(order)))), constrained_layout=True)
-    segments, widths, colours = [], [], []
+    segments, widths, colors = [], [], []
     cmap = plt.get_cmap("viridis")
     for y, species_id in enumerate(order):
         for generation, size in sorted(by_species[species_id]):
             segments.append([(generation - 0.5, y), (generation + 0.5, y)])
             widths.append(1.0 + 7.0 * size / biggest)
-            colours.append(cmap(0.15 + 0.8 * size / biggest))
-    ax.add_collection(LineCollection(segments, linewidths=widths, colors=colours))
+            colors.append(cmap(0.15 + 0.8 * size / biggest))
+    ax.add_collection(LineCollection(segments, linewidths=widths, colors=colors))
     ax.set_xlim(run.generations.min() - 1, run.generations.max() + 1)
     ax.set_ylim(-1, len(order))
     ax.set_yticks(range(len(order)))
     ax.set_yticklabels([str(s) for s in order], fontsize=7 if len(order) < 40 else 5)
-    _drifts(ax, run)
+    draw_drifts(ax, run)
     ax.set_xlabel("generation")
     ax.set_ylabel("species id (by birth)")
     scale = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(0, biggest))
@@ -319,15 +204,15 @@ def figure_lifespans(run: Run, path: Path) -> Path | None:
     ax.grid(alpha=0.2, axis="x")
     if drift_generations(run):
         ax.legend(fontsize=8, loc="upper right")
-    return _save(fig, path)
+    return save(fig, path)
 
 
-CONFIG_COLOURS = ("#1f77b4", "#ff7f0e", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#000000", "#17becf",
+CONFIG_COLORS = ("#1f77b4", "#ff7f0e", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#000000", "#17becf",
                   "#9467bd", "#d62728", "#2ca02c")
 """Line colours of configurations in overlays: the first ones avoid the task colours."""
 
 
-def _save(fig, path: Path) -> Path:
+def save(fig, path: Path) -> Path:
     import matplotlib.pyplot as plt
 
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -357,8 +242,7 @@ def plot_runs(paths, out: str | Path | None = None) -> list[Path]:
     import matplotlib
 
     matplotlib.use("Agg")
-    runs = [load_run(p) for p in find_run_dirs(paths)]
-    runs = [r for r in runs if r.metrics]
+    runs = [r for r in load_runs(paths) if r.metrics]
     if not runs:
         raise UserError("the runs have no metrics.csv rows yet: let a run write some generations first")
     groups = group_runs(runs)

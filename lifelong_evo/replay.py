@@ -10,54 +10,30 @@ environment seed S + i (default S = 1000000, away from the seeds of the run's ow
 from __future__ import annotations
 
 import argparse
-import re
 from pathlib import Path
 
+from algorithms import policy_from_export
+from envs import TASKS
+
+from .config import check_device
+from .episodes import play_episodes
 from .errors import UserError
+from .rerun_recorder import APPLICATION_ID, RerunRecorder, make_blueprint
+from .rundir import RunDir, read_json
 
 DEFAULT_SEED = 1_000_000
-
-
-def find_controller(run_dir, which: str) -> tuple[Path, str]:
-    """(controller file, label) for ``--controller``."""
-    folder = run_dir.controllers
-    given = Path(which)
-    if given.suffix == ".json" and given.is_file():
-        return given, re.sub(r"[^A-Za-z0-9-]+", "-", given.stem)
-    available = sorted(p.stem for p in folder.glob("*.json")) if folder.is_dir() else []
-    if which == "final":
-        candidates = [folder / "final-top.json"]
-    elif re.fullmatch(r"task\d+", which):
-        candidates = sorted(folder.glob(f"{which}-*-top.json"))
-    else:
-        candidates = [folder / f"{which}.json", folder / f"{which}-top.json"]
-    for candidate in candidates:
-        if candidate.is_file():
-            return candidate, which
-    if not available:
-        raise UserError(f"{run_dir.path} has no stored controller yet (controllers/ is empty): "
-                       "they are written at each task end")
-    raise UserError(f"no controller {which!r} in {folder}: use final, task<N> or one of {', '.join(available)}")
 
 
 def replay(run: str | Path, task_name: str | None = None, episodes: int = 5, controller: str = "final",
            seed: int = DEFAULT_SEED, record: bool = True, device: str = "cpu", quiet: bool = False):
     """Play and (optionally) record; returns (episodes, recording path or None)."""
-    from algorithms import policy_from_export
-    from envs import TASKS
-
-    from .config import check_device
-    from .episodes import play_episodes
-    from .loop import stored_config
-    from .rundir import RunDir, read_json
-
     run_dir = RunDir(run)
     if not run_dir.path.is_dir():
         raise UserError(f"{run_dir.path} does not exist: give a run directory (runs/<name>)")
     if episodes < 1:
         raise UserError(f"--episodes must be >= 1, got {episodes}")
     check_device(device)
-    config = stored_config(run_dir)
+    config = run_dir.read_config()
     phases = config.phases()
     task_name = task_name or phases[-1].name
     if task_name not in TASKS:
@@ -65,7 +41,7 @@ def replay(run: str | Path, task_name: str | None = None, episodes: int = 5, con
     task = TASKS[task_name]
     env_config = config.env_config()
     env_config.check_task(task)  # ConfigError (one line) if the run's arena lacks its colours
-    path, label = find_controller(run_dir, controller)
+    path, label = run_dir.find_controller(controller)
     exported = read_json(path)
     try:
         policy = policy_from_export(exported, device)
@@ -87,10 +63,8 @@ def replay(run: str | Path, task_name: str | None = None, episodes: int = 5, con
 
 
 def _record(run_dir, config, label: str, task_name: str, played, seeds, controller_path: Path) -> Path:
-    from .rerun_recorder import APPLICATION_ID, RerunRecorder, make_blueprint
-
-    name = f"replay-{task_name}" if label == "final" else f"replay-{label}-{task_name}"
-    path = run_dir.path / f"{name}.rrd"
+    path = run_dir.replay_recording(label, task_name)
+    name = path.stem
     entities = [(f"replay/{label}/on_{task_name}/episode{i}", f"{label} on {task_name}, seed {s}")
                 for i, s in enumerate(seeds)]
     recorder = RerunRecorder(path, recording_id=f"{APPLICATION_ID}/{run_dir.path.resolve().name}/{name}",

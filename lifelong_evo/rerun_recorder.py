@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import math
 import os
-import re
 import time
 from pathlib import Path
 from typing import Any
@@ -154,12 +153,7 @@ class RerunRecorder(Recorder):
     @classmethod
     def for_run(cls, run_dir, config, resume: bool) -> "RerunRecorder":
         name = run_dir.path.resolve().name
-        path = run_dir.recording
-        if resume:
-            checkpoint = run_dir.latest_checkpoint()
-            if checkpoint is not None:
-                generation = int(re.sub(r"\D", "", checkpoint.stem) or 0)
-                path = run_dir.path / f"recording-resumed-{generation:06d}.rrd"
+        path = run_dir.recording_path(resume)
         expected = expected_episode_paths(config)
         recorder = cls(path, recording_id=f"{APPLICATION_ID}/{name}", recording_name=name,
                        arena_size=config.env_config().size, blueprint=make_blueprint(expected), mode=sink_mode())

@@ -1,12 +1,16 @@
-"""The run directory, a stable contract other tools read:
+"""The run directory, a stable contract, and the only module that reads or writes one:
 
 ``runs/<name>/config.json``   the resolved configuration and library versions
 ``runs/<name>/metrics.csv``   one row per generation
 ``runs/<name>/species.csv``   NEAT only: generation, species_id, size (one row per species alive)
 ``runs/<name>/summary.json``  the paper's table values and the continual-learning metrics
-``runs/<name>/recording.rrd`` the Rerun recording
+``runs/<name>/recording.rrd`` the Rerun recording (``recording-resumed-<G>.rrd``: its continuations)
 ``runs/<name>/checkpoints/``  the last two checkpoints (see ``lifelong_evo.checkpoint``)
 ``runs/<name>/controllers/``  exported controllers (JSON: neat-python genomes or MLP parameters)
+
+``RunDir`` names these files and writes them while a run goes; ``Run`` (``load_run``,
+``find_run_dirs``, ``group_runs``) is what ``plot``, ``compare`` and ``sweep`` read back. Which
+runs are repetitions of one configuration is ``RunConfig.configuration_settings``.
 """
 from __future__ import annotations
 
@@ -15,12 +19,18 @@ import io
 import json
 import math
 import platform
+import re
 import shutil
+from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
 from typing import Any, Iterable
 
+import numpy as np
+
+from . import checkpoint
 from .checkpoint import atomic_write_bytes
+from .config import RunConfig
 from .errors import UserError
 
 
@@ -58,7 +68,7 @@ def read_json(path: Path) -> Any:
 
 
 class RunDir:
-    """Paths of one run directory, and its creation rules."""
+    """The files of one run directory, and the rules for making, writing and reading them."""
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
@@ -85,6 +95,51 @@ class RunDir:
             raise RunDirError(f"cannot make run directory {self.path}: {error.strerror}: "
                               "choose another --out or --name") from None
 
+    # -- config.json, summary.json, controllers/ --------------------------------------------------
+
+    def write_config(self, config: RunConfig) -> None:
+        """config.json: every RunConfig field, the resolved environment and the library versions."""
+        write_json(self.config, {**config.to_dict(), "env_resolved": config.env_config().to_dict(),
+                                 "versions": library_versions()})
+
+    def read_config(self) -> RunConfig:
+        """The configuration the run was created with."""
+        values = read_json(self.config)
+        return RunConfig.from_dict({k: v for k, v in values.items() if k not in ("env_resolved", "versions")},
+                                   str(self.config))
+
+    def write_summary(self, summary: dict[str, Any]) -> None:
+        write_json(self.summary, summary)
+
+    def write_top_controller(self, phase_index: int, task: str, exported: dict[str, Any]) -> None:
+        """The top individual at the end of phase ``phase_index``, also as the latest (final-top.json)."""
+        write_json(self.controllers / f"task{phase_index}-{task}-top.json", exported)
+        write_json(self.controllers / "final-top.json", exported)
+
+    def find_controller(self, which: str) -> tuple[Path, str]:
+        """(controller file, label) for ``which``: ``final``, ``task<N>`` (the top individual at
+        the end of phase N), a file stem in controllers/, or a path to a controller .json."""
+        folder = self.controllers
+        given = Path(which)
+        if given.suffix == ".json" and given.is_file():
+            return given, re.sub(r"[^A-Za-z0-9-]+", "-", given.stem)
+        available = sorted(p.stem for p in folder.glob("*.json")) if folder.is_dir() else []
+        if which == "final":
+            candidates = [folder / "final-top.json"]
+        elif re.fullmatch(r"task\d+", which):
+            candidates = sorted(folder.glob(f"{which}-*-top.json"))
+        else:
+            candidates = [folder / f"{which}.json", folder / f"{which}-top.json"]
+        for candidate in candidates:
+            if candidate.is_file():
+                return candidate, which
+        if not available:
+            raise RunDirError(f"{self.path} has no stored controller yet (controllers/ is empty): "
+                              "they are written at each task end")
+        raise RunDirError(f"no controller {which!r} in {folder}: use final, task<N> or one of {', '.join(available)}")
+
+    # -- checkpoints/ -----------------------------------------------------------------------------
+
     def checkpoint_files(self) -> list[Path]:
         """The checkpoints, oldest first."""
         return sorted(self.checkpoints.glob("generation-*.pt"))
@@ -95,6 +150,34 @@ class RunDir:
 
     def checkpoint_path(self, generation: int) -> Path:
         return self.checkpoints / f"generation-{generation:06d}.pt"
+
+    def save_checkpoint(self, generation: int, payload: dict[str, Any]) -> None:
+        """The checkpoint after ``generation`` generations; only the last two are kept."""
+        checkpoint.save(self.checkpoint_path(generation), payload)
+        for old in self.checkpoint_files()[:-2]:
+            old.unlink()
+
+    # -- recordings ---------------------------------------------------------------------------------
+
+    def recording_path(self, resume: bool) -> Path:
+        """Where a run's recording goes: recording.rrd, or for a resumed run (Rerun cannot append
+        to an .rrd file) ``recording-resumed-<G>.rrd``, G the generation of the checkpoint it
+        continues from."""
+        latest = self.latest_checkpoint() if resume else None
+        if latest is None:
+            return self.recording
+        generation = int(re.sub(r"\D", "", latest.stem) or 0)
+        return self.path / f"recording-resumed-{generation:06d}.rrd"
+
+    def recording_files(self, replays: bool = False) -> list[Path]:
+        """recording.rrd and its continuations, in order (and the replays' recordings)."""
+        files = ([self.recording] if self.recording.is_file() else []) \
+            + sorted(self.path.glob("recording-resumed-*.rrd"))
+        return files + (sorted(self.path.glob("replay-*.rrd")) if replays else [])
+
+    def replay_recording(self, controller: str, task: str) -> Path:
+        """``replay-<task>.rrd`` for the final controller, else ``replay-<controller>-<task>.rrd``."""
+        return self.path / (f"replay-{task}.rrd" if controller == "final" else f"replay-{controller}-{task}.rrd")
 
 
 def format_value(value) -> str:
@@ -199,3 +282,124 @@ def metric_columns(task_names: Iterable[str], has_species: bool, has_centre: boo
         if has_centre:
             columns.append(f"retention_centre_{name}")
     return columns
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading runs back: what plot, compare and sweep see
+
+
+@dataclass
+class Run:
+    """One run directory as the figures and the comparison read it."""
+
+    path: Path
+    config: dict[str, Any]
+    """config.json as written (RunConfig's fields, ``env_resolved``, ``versions``)."""
+    summary: dict[str, Any]
+    metrics: list[dict[str, str]] = field(default_factory=list)
+    """metrics.csv's rows, checked by ``read_metrics``."""
+
+    @property
+    def seed(self):
+        return self.config.get("seed")
+
+    @property
+    def key(self) -> str:
+        return config_key(self.config)
+
+    def column(self, name: str) -> np.ndarray:
+        """A metrics.csv column as floats over generations (NaN where empty or absent)."""
+        return np.array([_float(row.get(name, "")) for row in self.metrics], dtype=float)
+
+    @property
+    def generations(self) -> np.ndarray:
+        return np.array([int(row["generation"]) for row in self.metrics], dtype=int)
+
+    @property
+    def tasks(self) -> list[str]:
+        """The tasks of the metrics rows, one per generation."""
+        return [row["task"] for row in self.metrics]
+
+    def species_rows(self) -> list[tuple[int, int, int]] | None:
+        """species.csv as (generation, species_id, size); None where the run has none."""
+        path = self.path / "species.csv"
+        if not path.exists():
+            return None
+        # checked as metrics.csv is: a broken line is an error naming it, a half-written last one dropped
+        return [(int(row["generation"]), int(row["species_id"]), int(row["size"]))
+                for row in read_metrics(path, required=tuple(SPECIES_COLUMNS))]
+
+
+def _float(text: str) -> float:
+    return float(text) if text else float("nan")  # read_metrics let only numbers and blanks through
+
+
+def configuration_of(config: dict[str, Any]) -> dict[str, Any]:
+    """The settings of a config.json that make runs different configurations
+    (``RunConfig.configuration_settings``; the library versions are no setting)."""
+    return RunConfig.configuration_settings({k: v for k, v in config.items() if k != "versions"})
+
+
+def config_key(config: dict[str, Any]) -> str:
+    """A canonical string of a config.json's configuration: equal for repetitions of one."""
+    return json.dumps(configuration_of(config), sort_keys=True)
+
+
+def describe_config(config: dict[str, Any], others: list[dict[str, Any]] | None = None) -> str:
+    """A short label: algorithm, lambda, schedule, and whatever else of the configuration differs
+    from ``others``."""
+    label = f"{config.get('algo')} reg={config.get('reg', 0):g} {config.get('schedule')}"
+    if others:
+        shown = {"algo", "reg", "schedule", "env_resolved"}
+        differing = sorted(k for k in configuration_of(config) if k not in shown
+                           and any(o.get(k) != config.get(k) for o in others))
+        extra = []
+        for key in differing:
+            value = config[key]
+            extra.append(f"{key}={json.dumps(value, sort_keys=True) if isinstance(value, dict) else value}")
+        if extra:
+            label += " " + " ".join(extra)
+    return label
+
+
+def is_run_dir(path: Path) -> bool:
+    return (path / "config.json").is_file() and (path / "summary.json").is_file()
+
+
+def find_run_dirs(paths) -> list[Path]:
+    """Every run directory (config.json + summary.json) at or under ``paths``, sorted."""
+    found: set[Path] = set()
+    for given in paths:
+        path = Path(given)
+        if not path.exists():
+            raise RunDirError(f"{path} does not exist: give run directories or folders that hold them")
+        if is_run_dir(path):
+            found.add(path)
+            continue
+        for config in path.rglob("config.json"):
+            if is_run_dir(config.parent):
+                found.add(config.parent)
+    if not found:
+        raise RunDirError(f"no run directory (config.json + summary.json) under {', '.join(map(str, paths))}: "
+                          "run `python -m lifelong_evo run` first or check the path")
+    return sorted(found)
+
+
+def load_run(path: Path, with_metrics: bool = True) -> Run:
+    config = read_json(path / "config.json")
+    summary = read_json(path / "summary.json")
+    metrics = read_metrics(path / "metrics.csv") if with_metrics and (path / "metrics.csv").exists() else []
+    return Run(path=path, config=config, summary=summary, metrics=metrics)
+
+
+def load_runs(paths, with_metrics: bool = True) -> list[Run]:
+    """Every run at or under ``paths`` (``find_run_dirs``)."""
+    return [load_run(path, with_metrics) for path in find_run_dirs(paths)]
+
+
+def group_runs(runs: list[Run]) -> list[list[Run]]:
+    """Runs grouped by configuration (in order of first appearance), each group sorted by seed."""
+    groups: dict[str, list[Run]] = {}
+    for run in runs:
+        groups.setdefault(run.key, []).append(run)
+    return [sorted(group, key=lambda r: (str(r.seed), str(r.path))) for group in groups.values()]

@@ -66,14 +66,15 @@ from typing import Any
 
 from envs import ConfigError
 
+from . import loop
 from .checkpoint import atomic_write_bytes
 from .config import PRESETS, RunConfig, load_toml, resolve
 from .errors import UserError
 from .flags import add_run_options
 from .options import flag, parse_value, plain, schema
-from .plots import IGNORED_CONFIG_KEYS
 from .report import duration
-from .rundir import RunDirError, read_json, write_json
+from .rerun_recorder import RerunRecorder
+from .rundir import RunDir, RunDirError, configuration_of, describe_config, read_json, write_json
 
 RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in ("env", "algo_options")]
 """Run options with a flag of their own (``--no-record`` for ``record``)."""
@@ -83,8 +84,6 @@ _NESTED = {"env": "env", "algo_options": "option"}
 _LABELS = {"reg": "reg", "seed": "seed", "population": "pop", "generations": "gen", "evals": "evals",
            "retention_every": "ret", "checkpoint_every": "ckpt", "threads": "threads", "eval_threads": "evalthreads",
            "episodes_every": "ep"}
-_NOT_OUTCOME = ("record", "episodes_every")
-"""Settings a finished or resumed run may differ in (as ``loop.run`` allows on resume)."""
 STATUSES = ("done", "failed", "pending")
 
 
@@ -333,25 +332,14 @@ def run_trial(config_values: dict[str, Any], path: str, overwrite: bool) -> dict
     never raises: an error comes back as ``{"status": "failed", "error": one line}``."""
     started = time.monotonic()
     try:
-        from .loop import run
-        from .rundir import RunDir
-
         config = RunConfig.from_dict(config_values)
         run_dir = RunDir(path)
         resume = not overwrite and run_dir.config.exists()
-        recorder = None
-        if config.record:
-            from .rerun_recorder import RerunRecorder
-
-            recorder = RerunRecorder.for_run(run_dir, config, resume=resume)
-        summary = run(config, run_dir, resume=resume, overwrite=overwrite, recorder=recorder, progress="off")
+        recorder = RerunRecorder.for_run(run_dir, config, resume=resume) if config.record else None
+        summary = loop.run(config, run_dir, resume=resume, overwrite=overwrite, recorder=recorder, progress="off")
         return {"status": "done", "error": "", "wall_time_s": summary["wall_time_s"]}
     except Exception as error:  # noqa: BLE001 - the driver records it and goes on
         return {"status": "failed", "error": _one_line(error), "wall_time_s": time.monotonic() - started}
-
-
-def _normalised(values: dict[str, Any]) -> dict[str, Any]:
-    return {k: v for k, v in json.loads(json.dumps(values)).items() if k not in _NOT_OUTCOME}
 
 
 def is_complete(summary: dict[str, Any] | None, config: RunConfig) -> bool:
@@ -368,7 +356,7 @@ def trial_state(path: Path, config: RunConfig) -> tuple[str, str]:
         stored = read_json(config_file)
     except RunDirError as error:
         return "failed", str(error)
-    mine = _normalised(config.to_dict())
+    mine = RunConfig.outcome_settings(config.to_dict())
     different = sorted(k for k in mine if stored.get(k) != mine[k])
     if different:
         return "failed", (f"{path} was run with other settings ({', '.join(different)} differ): "
@@ -412,11 +400,6 @@ def selection_score(summary: dict[str, Any]) -> float | None:
     return float(current[1]) + float(rows[0]["R_top"])
 
 
-_SAME_CONFIGURATION_IGNORES = ("reg", *IGNORED_CONFIG_KEYS)
-"""Keys left out when grouping runs for the m.s. lambda: lambda, and what ``compare`` leaves out
-(the seed, and the speed and output settings)."""
-
-
 def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]) -> list[dict[str, Any]]:
     """The model-specific lambda: ``runs`` are (config.json dict, summary.json dict, tag) triples;
     for each configuration without lambda that was run with several lambdas, and each of its seeds,
@@ -426,7 +409,7 @@ def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]
     ``choices``, one per seed in ascending order: ``seed``, ``reg``, ``score``, ``tag``."""
     groups: dict[str, dict[str, Any]] = {}
     for config, summary, tag in runs:
-        rest = {k: v for k, v in config.items() if k not in _SAME_CONFIGURATION_IGNORES}
+        rest = {k: v for k, v in configuration_of(config).items() if k != "reg"}
         group = groups.setdefault(json.dumps(rest, sort_keys=True, default=str),
                                   {"regs": set(), "by_seed": {}, "configs": {}})
         group["regs"].add(float(config["reg"]))
@@ -451,8 +434,6 @@ CRITERION = "C_top(phase 1) + R_top(task of phase 0 at end of phase 1)"
 
 def model_specific_label(config: dict[str, Any], all_configs: list[dict[str, Any]]) -> str:
     """``compare``'s label of the configuration with ``reg=m.s.``, e.g. ``neat reg=m.s. red-green-red``."""
-    from .plots import describe_config
-
     return re.sub(r"reg=\S+", "reg=m.s.", describe_config(config, all_configs), count=1)
 
 

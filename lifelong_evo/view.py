@@ -29,6 +29,7 @@ from pathlib import Path
 from urllib.parse import quote
 
 from .errors import UserError
+from .rundir import RunDir
 
 HOST = "127.0.0.1"
 
@@ -42,10 +43,7 @@ def recording_files(target: str | Path, replays: bool = False) -> list[Path]:
         return [path]
     if not path.is_dir():
         raise UserError(f"{path} does not exist: give a run directory (runs/<name>) or an .rrd file")
-    files = ([path / "recording.rrd"] if (path / "recording.rrd").is_file() else []) \
-        + sorted(path.glob("recording-resumed-*.rrd"))
-    if replays:
-        files += sorted(path.glob("replay-*.rrd"))
+    files = RunDir(path).recording_files(replays)
     if not files:
         raise UserError(f"{path} has no recording.rrd: the run was made with --no-record (run it again without), "
                        f"or record fresh episodes with `python -m lifelong_evo replay {path}`")

@@ -94,11 +94,10 @@ def check_episodes(run: Path, rows: dict[str, list[dict]]) -> None:
     from algorithms import policy_from_export
     from envs import TASKS
     from lifelong_evo.episodes import play_episodes
-    from lifelong_evo.loop import stored_config
     from lifelong_evo.rerun_recorder import expected_episode_paths
     from lifelong_evo.rundir import RunDir
 
-    config = stored_config(RunDir(run))
+    config = RunDir(run).read_config()
     env = config.env_config()
     expected = [path for path, _ in expected_episode_paths(config)]
     logged = sorted({e.rsplit("/", 1)[0] for e in rows if e.startswith("episodes/")})
