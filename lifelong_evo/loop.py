@@ -1,12 +1,17 @@
-"""The lifelong loop: for each task of the schedule, for each generation:
-ask, evaluate on the current task (and on earlier tasks every few generations, in the same
-batched call), regularise, tell, record; checkpoints at intervals and at every task end."""
+"""The lifelong loop: for each task of the schedule, for each generation, ask, evaluate on the
+current task (and on earlier tasks every few generations, in the same batched call), regularise,
+tell, record; a checkpoint at intervals and at every task end.
+
+A run continues bit for bit from a checkpoint (``--resume``): everything random comes from the
+optimiser's state and the run's one torch generator, both checkpointed; recorded episodes draw
+from seeds of their own.
+"""
 from __future__ import annotations
 
 import sys
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Iterator
 
 import torch
 
@@ -17,11 +22,11 @@ from .config import RunConfig, check_device
 from .episodes import play_episodes
 from .errors import UserError
 from .evaluate import evaluate, update_threads
-from .metrics import fitness_stats, retention, summarise
+from .metrics import FitnessStats, GenerationRecord, Retention, retention, summarise
 from .progress import Progress
-from .recording import NullRecorder, Recorder
-from .rundir import SPECIES_COLUMNS, MetricsWriter, RunDir, metric_columns, read_json
-from .schedule import distinct_tasks
+from .recording import Recorder
+from .rundir import GenerationLog, MetricsLayout, RunDir, read_json
+from .schedule import Phase, distinct_tasks
 
 
 class ResumeError(UserError):
@@ -54,110 +59,104 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
     optimizer = make_optimizer(config.algo, obs_dim=env_config.obs_dim, population_size=config.population,
                                seed=config.seed, regularization=config.reg, device=config.device,
                                **config.algo_options)
+    centre = optimizer.centre_index  # ES: the search distribution's centre
     generator = torch.Generator().manual_seed(config.seed)
-    state = LoopState()
     if resume:
         state = _resume(config, run_dir, optimizer, generator)
     else:
+        state = LoopState()
         run_dir.create(overwrite)
         run_dir.write_config(config)
-    has_centre = optimizer.centre_index is not None
-    columns = metric_columns([t.name for t in tasks], has_species=config.algo == "neat", has_centre=has_centre,
-                             diagnostics=optimizer.diagnostics)
-    keep = state.generation if resume else None
-    writer = MetricsWriter(run_dir.metrics, columns, keep_generations=keep)
-    species_log = MetricsWriter(run_dir.species, SPECIES_COLUMNS, keep_generations=keep) if config.algo == "neat" else None
-    recorder = recorder or NullRecorder()
-    total = sum(p.generations for p in phases)
-    display = Progress(total, state.generation, mode=progress)
+    layout = MetricsLayout(tuple(t.name for t in tasks), species=config.algo == "neat", centre=centre is not None,
+                           diagnostics=optimizer.diagnostics)
+    log = GenerationLog(run_dir, layout, resumed_at=state.generation if resume else None)
+    recorder = recorder or Recorder()
+    display = Progress(sum(p.generations for p in phases), state.generation, mode=progress)
     started = time.monotonic() - state.wall_time_s
-    generation = 0
     try:
-        for phase_index, phase in enumerate(phases):
+        for generation, phase_index, in_task in _generations(phases, start=state.generation):
+            phase = phases[phase_index]
             earlier = [t for t in tasks if t.name in phase_names[:phase_index] and t.name != phase.name]
-            for in_task in range(phase.generations):
-                if generation < state.generation:  # done before the checkpoint we resumed from
-                    generation += 1
-                    continue
-                if in_task == 0 and phase_index > 0:
-                    recorder.log_drift(generation, phase_names[phase_index - 1], phase.name)
-                last = in_task == phase.generations - 1
-                if generation == 0 or last:
-                    others = [t for t in tasks if t.name != phase.name]  # every task: R matrix, FWT baseline
-                elif generation % config.retention_every == 0:
-                    others = earlier
-                else:
-                    others = []
-                with update_threads(config.threads, config.eval_threads):
-                    policy = optimizer.ask()
-                fitness = evaluate(policy, env_config, [phase.task, *others], config.evals, generator, config.device,
-                                   compiled=config.compile, eval_threads=config.eval_threads)
-                raw = fitness[0]
-                regularised = optimizer.regularise(raw)
-                # the top individual is the one selection favours, as in the paper's code: with a
-                # regulariser on, the best by regularised fitness, which is what one would deploy
-                scores = {task.name: retention(fitness[1 + i], regularised, optimizer.centre_index)
-                          for i, task in enumerate(others)}
-                scores[phase.name] = retention(raw, regularised, optimizer.centre_index)
-                top = int(regularised.argmax())
-                periodic = bool(config.episodes_every) and generation % config.episodes_every == 0
-                exported = optimizer.export(top) if last or periodic else None
-                with update_threads(config.threads, config.eval_threads):
-                    report = optimizer.tell(raw, regularised)
-                row = {"task": phase.name, "task_index": phase_index, "generation": generation,
-                       "generation_in_task": in_task, **fitness_stats(raw), **fitness_stats(regularised, "reg_"),
-                       "top": raw[top].item()}
-                if report.species_sizes is not None:
-                    row["species"] = len(report.species_sizes)
-                if has_centre:
-                    row["centre"] = raw[optimizer.centre_index].item()
-                row.update({name: report.extra[name] for name in optimizer.diagnostics})
-                for task in earlier:
-                    if task.name in scores:
-                        row[f"retention_pop_{task.name}"] = scores[task.name]["pop"]
-                        row[f"retention_top_{task.name}"] = scores[task.name]["top"]
-                        if has_centre:
-                            row[f"retention_centre_{task.name}"] = scores[task.name]["centre"]
-                writer.write(row)
-                if species_log is not None:
-                    for species_id, size in sorted(report.species_sizes.items()):
-                        species_log.write({"generation": generation, "species_id": species_id, "size": size})
-                recorder.log_generation(row, report)
-                if generation == 0:
-                    state.initial = {level: {name: s[level] for name, s in scores.items()} for level in ("pop", "top")}
+            last = in_task == phase.generations - 1
+            if in_task == 0 and phase_index > 0:
+                recorder.log_drift(generation, phase_names[phase_index - 1], phase.name)
+            if generation == 0 or last:
+                others = [t for t in tasks if t.name != phase.name]  # every task: R matrix, FWT baseline
+            elif generation % config.retention_every == 0:
+                others = earlier
+            else:
+                others = []
+
+            with update_threads(config.threads, config.eval_threads):
+                policy = optimizer.ask()
+            fitness = evaluate(policy, env_config, [phase.task, *others], config.evals, generator, config.device,
+                               compiled=config.compile, eval_threads=config.eval_threads)
+            raw = fitness[0]
+            regularised = optimizer.regularise(raw)
+            # the top individual is the one selection favours, as in the paper's code: with a
+            # regulariser on, the best by regularised fitness, which is what one would deploy
+            scores = {task.name: retention(fitness[1 + i], regularised, centre) for i, task in enumerate(others)}
+            scores[phase.name] = retention(raw, regularised, centre)
+            top = int(regularised.argmax())
+            periodic = bool(config.episodes_every) and generation % config.episodes_every == 0
+            # exported before tell, which replaces the asked population that export reads from
+            exported = optimizer.export(top) if last or periodic else None
+            with update_threads(config.threads, config.eval_threads):
+                report = optimizer.tell(raw, regularised)
+
+            record = GenerationRecord(
+                task=phase.name, task_index=phase_index, generation=generation, generation_in_task=in_task,
+                fitness=FitnessStats.of(raw), regularised=FitnessStats.of(regularised), top=raw[top].item(),
+                retention={t.name: scores[t.name] for t in earlier if t.name in scores},
+                species_sizes=report.species_sizes, centre=None if centre is None else raw[centre].item(),
+                diagnostics=report.extra)
+            log.write(record)
+            recorder.log_generation(record)
+            if generation == 0:  # scored on every task: the forward-transfer baseline
+                state.initial = {level: {name: getattr(s, level) for name, s in scores.items()} for level in ("pop", "top")}
+            if (last or periodic) and recorder.wants_episodes:
                 seen = [t for t in tasks if t.name in phase_names[:phase_index + 1]]
-                if (last or periodic) and recorder.wants_episodes:
-                    _record_episodes(config, recorder, exported, seen, generation, phase_index, phase.name, env_config)
-                if last:
-                    _finish_phase(run_dir, optimizer, state, phase_index, phase.name, scores, exported)
-                generation += 1
-                state.generation = generation
-                state.wall_time_s = time.monotonic() - started
-                best_kept = {t.name: scores[t.name]["pop"] for t in earlier if t.name in scores}
-                display.update(generation - 1, phase.name, phase_index + 1, len(phases), raw.max().item(), best_kept,
-                               task_end=last)
-                if last or generation % config.checkpoint_every == 0:
-                    _save_checkpoint(config, run_dir, optimizer, generator, state)
-                    run_dir.write_summary(summarise(phase_names, state.phase_ends, state.initial,
-                                                    state.wall_time_s, has_centre))
+                _record_episodes(config, recorder, exported, seen, generation, phase_index, phase.name, env_config)
+            if last:
+                # after the task's last tell, from which the optimiser takes its regulariser's reference
+                _finish_phase(run_dir, optimizer, state, phase_index, phase.name, scores, exported)
+
+            state.generation = generation + 1
+            state.wall_time_s = time.monotonic() - started
+            display.update(generation, phase.name, phase_index + 1, len(phases), record.fitness.best,
+                           {name: kept.pop for name, kept in record.retention.items()}, task_end=last)
+            # after the task end: a run resumed from this checkpoint has the task's reference
+            if last or state.generation % config.checkpoint_every == 0:
+                _save_checkpoint(config, run_dir, optimizer, generator, state)
+                run_dir.write_summary(summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s,
+                                                centre is not None))
     finally:
-        writer.close()
-        if species_log is not None:
-            species_log.close()
+        log.close()
         recorder.close()
         display.close()
-    summary = summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s, has_centre)
+    summary = summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s, centre is not None)
     run_dir.write_summary(summary)
     return summary
 
 
-def _finish_phase(run_dir, optimizer, state, phase_index, name, scores, exported) -> None:
+def _generations(phases: list[Phase], start: int) -> Iterator[tuple[int, int, int]]:
+    """(global generation, phase index, generation within the phase) from generation ``start`` on."""
+    generation = 0
+    for phase_index, phase in enumerate(phases):
+        for in_task in range(phase.generations):
+            if generation >= start:
+                yield generation, phase_index, in_task
+            generation += 1
+
+
+def _finish_phase(run_dir: RunDir, optimizer, state: LoopState, phase_index: int, name: str,
+                  scores: dict[str, Retention], exported: dict[str, Any]) -> None:
     """Task end: record C and the retention on every task, export the top controller, and let
     the optimiser take its regularisation reference."""
-    end = {"task": name, "C": scores[name]["pop"],
-           "R_pop": {n: s["pop"] for n, s in scores.items()}, "R_top": {n: s["top"] for n, s in scores.items()}}
+    end = {"task": name, "C": scores[name].pop,
+           "R_pop": {n: s.pop for n, s in scores.items()}, "R_top": {n: s.top for n, s in scores.items()}}
     if optimizer.centre_index is not None:
-        end["R_centre"] = {n: s["centre"] for n, s in scores.items()}
+        end["R_centre"] = {n: s.centre for n, s in scores.items()}
     state.phase_ends.append(end)
     run_dir.write_top_controller(phase_index, name, exported)
     optimizer.end_task()

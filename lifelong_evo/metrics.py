@@ -22,31 +22,79 @@ fitness of the fresh random population (generation 0) on phase j's task:
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Any
 
 import torch
 
 
-def fitness_stats(values: torch.Tensor, prefix: str = "") -> dict[str, float]:
-    values = values.double()
-    return {f"{prefix}best": values.max().item(), f"{prefix}mean": values.mean().item(),
-            f"{prefix}median": values.median().item(),
-            f"{prefix}std": values.std(unbiased=False).item()}
+@dataclass(frozen=True)
+class FitnessStats:
+    """One fitness vector summarised over the population."""
+
+    best: float
+    mean: float
+    median: float
+    std: float
+    """Population standard deviation (not the sample's)."""
+
+    @classmethod
+    def of(cls, values: torch.Tensor) -> FitnessStats:
+        values = values.double()
+        return cls(best=values.max().item(), mean=values.mean().item(), median=values.median().item(),
+                   std=values.std(unbiased=False).item())
 
 
-def retention(scores: torch.Tensor, selection: torch.Tensor, centre_index: int | None) -> dict[str, float]:
+@dataclass(frozen=True)
+class Retention:
+    """The fitness on one task of the population's best (``pop``), of the top individual
+    (``top``) and, for an ES, of its centre."""
+
+    pop: float
+    top: float
+    centre: float | None = None
+
+
+def retention(scores: torch.Tensor, selection: torch.Tensor, centre_index: int | None) -> Retention:
     """Population, top-individual (and centre) retention from one task's fitness ``scores``; the
     top individual is the best by ``selection``, the fitness selection uses on the current task."""
     top = int(selection.argmax())
-    values = {"pop": scores.max().item(), "top": scores[top].item()}
-    if centre_index is not None:
-        values["centre"] = scores[centre_index].item()
-    return values
+    return Retention(pop=scores.max().item(), top=scores[top].item(),
+                     centre=None if centre_index is None else scores[centre_index].item())
+
+
+@dataclass(frozen=True)
+class GenerationRecord:
+    """What the lifelong loop measured in one generation: ``rundir.MetricsLayout`` flattens it
+    into a metrics.csv row, the recorder draws it as it is."""
+
+    task: str
+    """The current task."""
+    task_index: int
+    """Its phase of the schedule, from 0."""
+    generation: int
+    """Global, from 0."""
+    generation_in_task: int
+    fitness: FitnessStats
+    """Of the raw fitness on the current task."""
+    regularised: FitnessStats
+    """Of the selection fitness: the raw one minus the regulariser's penalty."""
+    top: float
+    """Raw fitness of the top individual, the best by selection fitness."""
+    retention: dict[str, Retention]
+    """Per earlier task scored in this generation (every few generations and at task ends)."""
+    species_sizes: dict[int, int] | None = None
+    """NEAT: species id -> members."""
+    centre: float | None = None
+    """ES: the raw fitness of the search distribution's centre."""
+    diagnostics: dict[str, float] = field(default_factory=dict)
+    """The optimiser's scalars of this generation (``GenerationReport.extra``); those its class
+    names in ``Optimizer.diagnostics`` are also metrics.csv columns."""
 
 
 def summarise(phase_names: list[str], phase_ends: list[dict[str, Any]], initial: dict[str, dict[str, float]],
               wall_time_s: float, has_centre: bool) -> dict[str, Any]:
-    """summary.json from the task-end records (see ``LifelongRun``) and the generation-0 scores."""
+    """summary.json from the task-end records (``loop.LoopState.phase_ends``) and the generation-0 scores."""
     summary: dict[str, Any] = {"phases": phase_names[:len(phase_ends)], "wall_time_s": wall_time_s,
                                "current": [end["C"] for end in phase_ends],
                                "current_top": [end["R_top"][end["task"]] for end in phase_ends], "forgetting": []}

@@ -29,7 +29,7 @@ import numpy as np
 from envs import task_rgb
 
 from .errors import UserError
-from .rundir import Run, describe_config, group_runs, load_runs
+from .rundir import Run, describe_config, group_runs, load_runs, retention_columns
 
 
 def task_color(task: str) -> tuple[float, float, float]:
@@ -70,9 +70,8 @@ def retention_by_task(group: list[Run], level: str) -> dict[str, tuple[np.ndarra
     """Per earlier task: the measured retention points (generations where any seed measured it),
     with NaN at the generations where that task is the current one (a break in the line)."""
     out = {}
-    columns = [c for c in group[0].metrics[0] if c.startswith(f"retention_{level}_")] if group[0].metrics else []
-    for column in columns:
-        task = column[len(f"retention_{level}_"):]
+    columns = retention_columns(group[0].metrics[0], level) if group[0].metrics else {}
+    for task, column in columns.items():
         generations, values = stack(group, column)
         current = np.array(group[0].tasks[:len(generations)]) == task
         measured = ~np.all(np.isnan(values), axis=0) & ~current

@@ -1,12 +1,10 @@
 """What the lifelong loop tells a recorder; the Rerun recorder lives in ``rerun_recorder``."""
 from __future__ import annotations
 
-from typing import Any
-
-from algorithms.base import GenerationReport
 from envs import Task
 
 from .episodes import Episode
+from .metrics import GenerationRecord
 
 
 class Recorder:
@@ -15,8 +13,8 @@ class Recorder:
     wants_episodes: bool = False
     """Whether the loop should play and pass top-individual episodes at task ends."""
 
-    def log_generation(self, row: dict[str, Any], report: GenerationReport) -> None:
-        """One metrics.csv row (and the optimiser's report) per generation."""
+    def log_generation(self, record: GenerationRecord) -> None:
+        """What the generation measured (the metrics.csv row, and every scalar the optimiser reported)."""
 
     def log_drift(self, generation: int, previous: str, task: str) -> None:
         """The task changes before ``generation``."""
@@ -27,5 +25,3 @@ class Recorder:
     def close(self) -> None:
         """Flush and finish."""
 
-
-NullRecorder = Recorder

@@ -42,13 +42,13 @@ import math
 import os
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from envs import COLOR_RGB, color_rgb, task_rgb
 
 from .episodes import Episode
+from .metrics import GenerationRecord
 from .errors import UserError
 from .recording import Recorder
 
@@ -219,32 +219,26 @@ class RerunRecorder(Recorder):
 
     # -- Recorder -------------------------------------------------------------------------------
 
-    def log_generation(self, row: dict[str, Any], report) -> None:
-        generation = int(row["generation"])
-        if generation == 0 and row.get("generation_in_task", 0) == 0:
-            self.text(generation, f"run {self.recording_name}: task {row['task']} from generation 0. "
+    def log_generation(self, record: GenerationRecord) -> None:
+        generation, task = record.generation, record.task
+        if generation == 0 and record.generation_in_task == 0:
+            self.text(generation, f"run {self.recording_name}: task {task} from generation 0. "
                                   "Episodes play on the 'step' timeline (pick it in the time panel).")
-        task = row["task"]
-        colour = task_rgb(task)
-        light = tuple(int(c + (255 - c) * 0.45) for c in colour)
-        for kind, prefix, label in (("current", "", ""), ("regularised", "reg_", " regularised")):
-            self._scalar(generation, f"curves/{kind}/{task}/best", row.get(f"{prefix}best"), colour,
-                         f"{task}{label} best", 2.0)
-            self._scalar(generation, f"curves/{kind}/{task}/mean", row.get(f"{prefix}mean"), light,
-                         f"{task}{label} mean", 1.0)
-        self._scalar(generation, f"curves/current/{task}/top", row.get("top"), colour, f"{task} top individual", 1.5)
-        if "centre" in row:
-            self._scalar(generation, f"curves/centre/{task}", row["centre"], colour, f"{task} centre", 1.5)
-        if "species" in row:
-            self._scalar(generation, "curves/species", row["species"], (220, 220, 220), "species", 1.5)
-        for key, value in row.items():
+        color = task_rgb(task)
+        light = tuple(int(c + (255 - c) * 0.45) for c in color)
+        for kind, stats, label in (("current", record.fitness, ""), ("regularised", record.regularised, " regularised")):
+            self._scalar(generation, f"curves/{kind}/{task}/best", stats.best, color, f"{task}{label} best", 2.0)
+            self._scalar(generation, f"curves/{kind}/{task}/mean", stats.mean, light, f"{task}{label} mean", 1.0)
+        self._scalar(generation, f"curves/current/{task}/top", record.top, color, f"{task} top individual", 1.5)
+        if record.centre is not None:
+            self._scalar(generation, f"curves/centre/{task}", record.centre, color, f"{task} centre", 1.5)
+        if record.species_sizes is not None:
+            self._scalar(generation, "curves/species", len(record.species_sizes), (220, 220, 220), "species", 1.5)
+        for other, kept in record.retention.items():
             for level, width in (("pop", 2.0), ("top", 1.5), ("centre", 1.0)):
-                prefix = f"retention_{level}_"
-                if key.startswith(prefix):
-                    other = key[len(prefix):]
-                    self._scalar(generation, f"curves/retention_{level}/{other}", value, task_rgb(other),
-                                 f"{other} retention ({level})", width)
-        for name, value in (getattr(report, "extra", None) or {}).items():
+                self._scalar(generation, f"curves/retention_{level}/{other}", getattr(kept, level), task_rgb(other),
+                             f"{other} retention ({level})", width)
+        for name, value in record.diagnostics.items():
             self._scalar(generation, f"curves/extra/{name}", value, (200, 200, 200), name, 1.0)
         self._pending_rows += 1
         if self._pending_rows >= FLUSH_GENERATIONS or time.monotonic() - self._last_flush > FLUSH_SECONDS \

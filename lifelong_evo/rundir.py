@@ -32,6 +32,7 @@ from . import checkpoint
 from .checkpoint import atomic_write_bytes
 from .config import RunConfig
 from .errors import UserError
+from .metrics import GenerationRecord
 
 
 class RunDirError(UserError):
@@ -180,7 +181,80 @@ class RunDir:
         return self.path / (f"replay-{task}.rrd" if controller == "final" else f"replay-{controller}-{task}.rrd")
 
 
+# ---------------------------------------------------------------------------------------------
+# metrics.csv and species.csv: every column name is spelled here
+
+
+FIXED_COLUMNS = ("task_index", "generation", "generation_in_task")
+"""The integer columns every metrics.csv starts with, after ``task``."""
+STATISTICS = ("best", "mean", "median", "std")
+"""The columns of the raw fitness (``metrics.FitnessStats``); ``reg_`` + each: of the selection fitness."""
+RETENTION_LEVELS = ("pop", "top", "centre")
+"""Whose retention a column holds (``metrics.Retention``); ``centre`` for an ES only."""
+SPECIES_COLUMNS = ("generation", "species_id", "size")
+INTEGER_COLUMNS = {*FIXED_COLUMNS, "species", *SPECIES_COLUMNS}
+"""Integer columns of metrics.csv and species.csv; ``task`` is text, every other column a number."""
+
+
+def retention_column(level: str, task: str) -> str:
+    """The column of ``level``'s retention of ``task``: ``retention_pop_red``."""
+    return f"retention_{level}_{task}"
+
+
+def retention_columns(columns: Iterable[str], level: str) -> dict[str, str]:
+    """Task -> column, of the ``level`` retention columns among a metrics.csv header."""
+    prefix = retention_column(level, "")
+    return {column[len(prefix):]: column for column in columns if column.startswith(prefix)}
+
+
+@dataclass(frozen=True)
+class MetricsLayout:
+    """The columns of a run's metrics.csv, fixed by its schedule and its optimiser, and how a
+    ``metrics.GenerationRecord`` fills them."""
+
+    tasks: tuple[str, ...]
+    """Every task of the schedule, once, in order: each has its retention columns."""
+    species: bool
+    """NEAT: the species count (and species.csv)."""
+    centre: bool
+    """ES: the centre's fitness and retention."""
+    diagnostics: tuple[str, ...] = ()
+    """The optimiser's ``diagnostics``: a column each."""
+
+    @property
+    def levels(self) -> tuple[str, ...]:
+        return RETENTION_LEVELS if self.centre else RETENTION_LEVELS[:2]
+
+    @property
+    def columns(self) -> list[str]:
+        columns = ["task", *FIXED_COLUMNS, *STATISTICS, *(f"reg_{name}" for name in STATISTICS), "top"]
+        if self.species:
+            columns.append("species")
+        if self.centre:
+            columns.append("centre")
+        columns += self.diagnostics
+        for task in self.tasks:
+            columns += [retention_column(level, task) for level in self.levels]
+        return columns
+
+    def row(self, record: GenerationRecord) -> dict[str, Any]:
+        """``record`` as metrics.csv cells by column (a column left out is written empty)."""
+        row = {"task": record.task, "task_index": record.task_index, "generation": record.generation,
+               "generation_in_task": record.generation_in_task, "top": record.top}
+        for prefix, stats in (("", record.fitness), ("reg_", record.regularised)):
+            row.update({prefix + name: getattr(stats, name) for name in STATISTICS})
+        if self.species and record.species_sizes is not None:
+            row["species"] = len(record.species_sizes)
+        if self.centre:
+            row["centre"] = record.centre
+        row.update({name: record.diagnostics[name] for name in self.diagnostics})
+        for task, kept in record.retention.items():
+            row.update({retention_column(level, task): getattr(kept, level) for level in self.levels})
+        return row
+
+
 def format_value(value) -> str:
+    """A cell: floats exactly (``repr``), nothing for None or NaN."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return ""
     if isinstance(value, float):
@@ -188,28 +262,25 @@ def format_value(value) -> str:
     return str(value)
 
 
-SPECIES_COLUMNS = ["generation", "species_id", "size"]
+class CsvLog:
+    """A CSV file appended to row by row, flushed at once; on resume it first cuts the file back
+    to the rows of the generations the checkpoint covers (a kill may have left more)."""
 
-
-class MetricsWriter:
-    """Appends CSV rows per generation, flushed at once; on resume it first cuts the file
-    back to the rows of the generations the checkpoint covers (a kill may have left more)."""
-
-    def __init__(self, path: Path, columns: list[str], keep_generations: int | None):
+    def __init__(self, path: Path, columns: Iterable[str], keep_generations: int | None):
         self.path = path
-        self.columns = columns
+        self.columns = list(columns)
         kept: list[dict[str, str]] = []
         if keep_generations is not None and path.exists():
             kept = [row for row in read_metrics(path, required=("generation",))
                     if int(row["generation"]) < keep_generations]
-        rows = [",".join(columns)] + [",".join(row.get(c, "") for c in columns) for row in kept]
+        rows = [",".join(self.columns)] + [",".join(row.get(c, "") for c in self.columns) for row in kept]
         atomic_write_bytes(path, ("\n".join(rows) + "\n").encode())
         self.handle = open(path, "a", newline="")
 
     def write(self, row: dict[str, Any]) -> None:
         unknown = set(row) - set(self.columns)
         if unknown:
-            raise KeyError(f"metrics row has columns not in the header: {sorted(unknown)}")
+            raise KeyError(f"{self.path.name} row has columns not in the header: {sorted(unknown)}")
         self.handle.write(",".join(format_value(row.get(c)) for c in self.columns) + "\n")
         self.handle.flush()
 
@@ -217,10 +288,25 @@ class MetricsWriter:
         self.handle.close()
 
 
-FIXED_COLUMNS = ("task_index", "generation", "generation_in_task")
-"""The integer columns every metrics.csv starts with, after ``task``."""
-INTEGER_COLUMNS = {*FIXED_COLUMNS, "species", *SPECIES_COLUMNS}
-"""Integer columns of metrics.csv and species.csv; ``task`` is text, every other column a number."""
+class GenerationLog:
+    """metrics.csv, and species.csv where the layout has species: a row (and the living species)
+    per ``GenerationRecord``. ``resumed_at``: the generations a resumed run keeps."""
+
+    def __init__(self, run_dir: RunDir, layout: MetricsLayout, resumed_at: int | None):
+        self.layout = layout
+        self.metrics = CsvLog(run_dir.metrics, layout.columns, resumed_at)
+        self.species = CsvLog(run_dir.species, SPECIES_COLUMNS, resumed_at) if layout.species else None
+
+    def write(self, record: GenerationRecord) -> None:
+        self.metrics.write(self.layout.row(record))
+        if self.species is not None:
+            for species_id, size in sorted(record.species_sizes.items()):
+                self.species.write({"generation": record.generation, "species_id": species_id, "size": size})
+
+    def close(self) -> None:
+        self.metrics.close()
+        if self.species is not None:
+            self.species.close()
 
 
 def read_metrics(path: Path, required: tuple[str, ...] = ("task", *FIXED_COLUMNS)) -> list[dict[str, str]]:
@@ -262,26 +348,6 @@ def _is_metric(cell: str, integer: bool) -> bool:
     except ValueError:
         return False
     return True
-
-
-def metric_columns(task_names: Iterable[str], has_species: bool, has_centre: bool,
-                   diagnostics: Iterable[str] = ()) -> list[str]:
-    """The metrics.csv header of a run: fixed by its schedule and algorithm (``diagnostics``:
-    the optimiser's, see ``algorithms.base.Optimizer.diagnostics``)."""
-    columns = ["task", *FIXED_COLUMNS]
-    for prefix in ("", "reg_"):
-        columns += [f"{prefix}best", f"{prefix}mean", f"{prefix}median", f"{prefix}std"]
-    columns.append("top")
-    if has_species:
-        columns.append("species")
-    if has_centre:
-        columns.append("centre")
-    columns += diagnostics
-    for name in task_names:
-        columns += [f"retention_pop_{name}", f"retention_top_{name}"]
-        if has_centre:
-            columns.append(f"retention_centre_{name}")
-    return columns
 
 
 # ---------------------------------------------------------------------------------------------
@@ -327,7 +393,7 @@ class Run:
             return None
         # checked as metrics.csv is: a broken line is an error naming it, a half-written last one dropped
         return [(int(row["generation"]), int(row["species_id"]), int(row["size"]))
-                for row in read_metrics(path, required=tuple(SPECIES_COLUMNS))]
+                for row in read_metrics(path, required=SPECIES_COLUMNS)]
 
 
 def _float(text: str) -> float:

@@ -18,7 +18,7 @@ import pytest
 import torch
 
 from lifelong_evo.cli import main
-from lifelong_evo.metrics import retention, summarise
+from lifelong_evo.metrics import Retention, retention, summarise
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -148,8 +148,8 @@ def test_the_top_individual_is_the_best_by_selection_fitness():
     raw = torch.tensor([9.0, 7.0, 5.0])
     regularised = torch.tensor([1.0, 6.0, 4.0])   # the penalty ranks controller 1 first
     on_red = torch.tensor([0.0, 3.0, 8.0])
-    assert retention(on_red, regularised, centre_index=None) == {"pop": 8.0, "top": 3.0}
-    assert retention(raw, regularised, centre_index=2) == {"pop": 9.0, "top": 7.0, "centre": 5.0}
+    assert retention(on_red, regularised, centre_index=None) == Retention(pop=8.0, top=3.0)
+    assert retention(raw, regularised, centre_index=2) == Retention(pop=9.0, top=7.0, centre=5.0)
     ends = [{"task": "red", "C": 9.0, "R_pop": {"red": 9.0, "green": 2.0}, "R_top": {"red": 9.0, "green": 1.0}},
             {"task": "green", "C": 12.0, "R_pop": {"red": 8.0, "green": 12.0}, "R_top": {"red": 3.0, "green": 7.0}},
             {"task": "red", "C": 10.0, "R_pop": {"red": 10.0, "green": 11.0}, "R_top": {"red": 6.0, "green": 4.0}}]

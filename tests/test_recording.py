@@ -176,10 +176,10 @@ def test_es_recording_and_resume_writes_a_second_part(es_run, tmp_path):
 def test_paper_scale_recording_stays_small(tmp_path):
     """600 generations and episodes of 500 steps at three task ends (the paper's run; 1, 2, 2
     tasks), logged through the recorder: far below 50 MB."""
-    from algorithms.base import GenerationReport
     from envs import TASKS
     from lifelong_evo.config import resolve
     from lifelong_evo.episodes import Episode
+    from lifelong_evo.metrics import FitnessStats, GenerationRecord, Retention
     from lifelong_evo.rerun_recorder import RerunRecorder, expected_episode_paths, make_blueprint
 
     config = resolve("paper", {}, {"algo": "neat"})
@@ -190,13 +190,12 @@ def test_paper_scale_recording_stays_small(tmp_path):
     names = ["red", "green", "red"]
     for g in range(600):
         phase = g // 200
-        row = {"task": names[phase], "task_index": phase, "generation": g, "generation_in_task": g % 200,
-               "best": rng.random(), "mean": rng.random(), "reg_best": rng.random(), "reg_mean": rng.random(),
-               "species": 5}
-        if phase and g % 10 == 0:
-            other = names[phase - 1]
-            row[f"retention_pop_{other}"], row[f"retention_top_{other}"] = rng.random(), rng.random()
-        recorder.log_generation(row, GenerationReport(species_sizes={1: 300}))
+        retention = {names[phase - 1]: Retention(pop=rng.random(), top=rng.random())} if phase and g % 10 == 0 else {}
+        recorder.log_generation(GenerationRecord(
+            task=names[phase], task_index=phase, generation=g, generation_in_task=g % 200,
+            fitness=FitnessStats(best=rng.random(), mean=rng.random(), median=0.0, std=0.0),
+            regularised=FitnessStats(best=rng.random(), mean=rng.random(), median=0.0, std=0.0), top=rng.random(),
+            retention=retention, species_sizes={1: 300}))
         if g % 200 == 199:
             for task in dict.fromkeys(names[:phase + 1]):
                 T, A, K = 501, 5, 20

@@ -1,0 +1,75 @@
+"""The metrics.csv and species.csv contract on fixed inputs: a ``GenerationRecord`` becomes the
+same bytes a run has always written (the headers are those of real NEAT and OpenAI-ES runs), and
+a resumed log keeps only the generations its checkpoint covers."""
+from __future__ import annotations
+
+import math
+
+from lifelong_evo.metrics import FitnessStats, GenerationRecord, Retention
+from lifelong_evo.rundir import GenerationLog, MetricsLayout, RunDir, retention_columns
+
+NEAT = MetricsLayout(("red", "green"), species=True, centre=False,
+                     diagnostics=("distance_mean", "distance_std", "disabled_fraction"))
+ES = MetricsLayout(("red", "green"), species=False, centre=True)
+
+
+def record(generation: int, **changes) -> GenerationRecord:
+    values = dict(task="green", task_index=1, generation=generation, generation_in_task=generation - 5,
+                  fitness=FitnessStats(best=1.5, mean=-0.025, median=0.0, std=0.4866980583482947),
+                  regularised=FitnessStats(best=1.0, mean=-0.075, median=0.0, std=0.3269174207655505), top=1.0,
+                  retention={"red": Retention(pop=3.5, top=0.5, centre=-1.0)}, species_sizes={4: 8, 1: 12},
+                  centre=0.25, diagnostics={"distance_mean": math.nan, "distance_std": math.nan,
+                                            "disabled_fraction": 0.006368393627778321, "stdev_mean": 0.1})
+    return GenerationRecord(**{**values, **changes})
+
+
+def test_a_record_is_the_row_runs_have_always_written(tmp_path):
+    run_dir = RunDir(tmp_path)
+    log = GenerationLog(run_dir, NEAT, resumed_at=None)
+    log.write(record(7))
+    log.write(record(8, retention={}))
+    log.close()
+    assert run_dir.metrics.read_text() == (
+        "task,task_index,generation,generation_in_task,best,mean,median,std,reg_best,reg_mean,reg_median,reg_std,"
+        "top,species,distance_mean,distance_std,disabled_fraction,retention_pop_red,retention_top_red,"
+        "retention_pop_green,retention_top_green\n"
+        "green,1,7,2,1.5,-0.025,0.0,0.4866980583482947,1.0,-0.075,0.0,0.3269174207655505,1.0,2,,,"
+        "0.006368393627778321,3.5,0.5,,\n"
+        "green,1,8,3,1.5,-0.025,0.0,0.4866980583482947,1.0,-0.075,0.0,0.3269174207655505,1.0,2,,,"
+        "0.006368393627778321,,,,\n")
+    assert run_dir.species.read_text() == "generation,species_id,size\n7,1,12\n7,4,8\n8,1,12\n8,4,8\n"
+
+
+def test_an_es_row_has_the_centre_and_only_declared_diagnostics(tmp_path):
+    run_dir = RunDir(tmp_path)
+    log = GenerationLog(run_dir, ES, resumed_at=None)
+    log.write(record(7, species_sizes=None))
+    log.close()
+    header, row = run_dir.metrics.read_text().splitlines()
+    assert header == ("task,task_index,generation,generation_in_task,best,mean,median,std,reg_best,reg_mean,"
+                      "reg_median,reg_std,top,centre,retention_pop_red,retention_top_red,retention_centre_red,"
+                      "retention_pop_green,retention_top_green,retention_centre_green")
+    assert row == "green,1,7,2,1.5,-0.025,0.0,0.4866980583482947,1.0,-0.075,0.0,0.3269174207655505,1.0,0.25,3.5,0.5,-1.0,,,"
+    assert not run_dir.species.exists()
+
+
+def test_every_layout_fills_only_its_own_columns():
+    for layout in (NEAT, ES, MetricsLayout(("red",), species=False, centre=False)):
+        assert set(layout.row(record(7))) <= set(layout.columns)
+        assert retention_columns(layout.columns, "pop") == {t: f"retention_pop_{t}" for t in layout.tasks}
+
+
+def test_a_resumed_log_keeps_the_generations_its_checkpoint_covers(tmp_path):
+    run_dir = RunDir(tmp_path)
+    log = GenerationLog(run_dir, NEAT, resumed_at=None)
+    for generation in (5, 6, 7):
+        log.write(record(generation))
+    log.close()
+    whole = run_dir.metrics.read_text()
+    with open(run_dir.metrics, "a") as handle:
+        handle.write("green,1,8,3,1.5")  # a killed run's half line
+    log = GenerationLog(run_dir, NEAT, resumed_at=7)
+    log.write(record(7))
+    log.close()
+    assert run_dir.metrics.read_text() == whole
+    assert run_dir.species.read_text().splitlines()[-1] == "7,4,8"
