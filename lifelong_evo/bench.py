@@ -6,21 +6,22 @@ at several batch sizes, with the split between sensing, controller and dynamics.
 With ``--algo NAME``: one full generation of that optimiser (ask, evaluate, regularise, tell);
 with ``--compile`` as well, first eagerly, then compiled.
 The last line is always ``s_per_generation=<seconds>`` for the chosen workload.
+``benchmarks/reference_step.py`` (a script outside the package) runs the environment part on
+another step: ``main(env_class=...)``.
 """
 from __future__ import annotations
 
 import argparse
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 
 import torch
 
+from algorithms import make_optimizer
 from algorithms.base import BatchedPolicy
-from envs import TASKS, ForagingConfig, ForagingEnv, outputs_to_wheels
-from lifelong_evo.bench_reference import ReferenceStep
-from lifelong_evo.evaluate import evaluate, shard_bounds, update_threads
-
+from algorithms.mlp import MLPPolicy, layer_sizes_for, n_parameters
+from envs import TASKS, ForagingConfig, ForagingEnv
+from lifelong_evo.evaluate import evaluate, rollout, shard_bounds, update_threads
 
 WARM_UP_STEPS = 3
 """Untimed steps before the timed ones (they compile the step under --compile)."""
@@ -40,58 +41,61 @@ def _wait_for_gpu() -> None:
         torch.cuda.synchronize()
 
 
-def bench_env(n_envs: int, steps: int, config: ForagingConfig, device: str, compile_env: bool,
-              eval_threads: int = 1, reference: bool = False) -> dict:
-    """Time ``steps`` steps of ``n_envs`` environments driven by one random MLP per 10 envs,
-    split over ``eval_threads`` threads as the evaluator splits a population; ``reference``:
-    of ``ReferenceStep`` instead (see ``lifelong_evo.bench_reference``)."""
-    from algorithms.mlp import MLPPolicy, layer_sizes_for, n_parameters
+class _TimedPolicy:
+    """A policy that adds the seconds each call takes to ``seconds``."""
 
+    def __init__(self, policy: BatchedPolicy):
+        self.policy, self.population_size, self.seconds = policy, policy.population_size, 0.0
+
+    def __call__(self, observations: torch.Tensor) -> torch.Tensor:
+        outputs, spent = _timed(lambda: self.policy(observations))
+        self.seconds += spent
+        return outputs
+
+
+class _TimedEnv:
+    """An environment whose ``step`` adds the seconds it takes to ``seconds``."""
+
+    def __init__(self, env: ForagingEnv):
+        self.env, self.config, self.seconds = env, env.config, 0.0
+
+    def step(self, wheels: torch.Tensor):
+        result, spent = _timed(lambda: self.env.step(wheels))
+        self.seconds += spent
+        return result
+
+
+def bench_env(n_envs: int, steps: int, config: ForagingConfig, device: str, compile_env: bool,
+              eval_threads: int = 1, env_class: type = ForagingEnv) -> dict:
+    """Time ``steps`` steps (``evaluate.rollout``'s) of ``n_envs`` environments driven by one
+    random MLP per 10 envs, split over ``eval_threads`` threads as the evaluator splits a
+    population. ``env_class``: the step to time, ``ForagingEnv`` or one with its ``reset``,
+    ``step``, ``observe`` and ``compile``."""
     generator = torch.Generator().manual_seed(0)
     population = max(1, n_envs // 10)
     sizes = layer_sizes_for(config.obs_dim)
     policy = MLPPolicy(torch.randn(population, n_parameters(sizes), generator=generator).to(device), sizes)
     shards = []
     for start, stop in shard_bounds(population, eval_threads):
-        env = (ReferenceStep if reference else ForagingEnv)(config, batch_size=(stop - start) * 10, device=device)
+        env = env_class(config, batch_size=(stop - start) * 10, device=device)
         if compile_env:
             env.compile()
-        shards.append(_Shard(env, policy.shard(start, stop), env.reset(TASKS["red"], generator=generator)))
+        shards.append((policy.shard(start, stop), env, env.reset(TASKS["red"], generator=generator)))
     with ThreadPoolExecutor(len(shards)) as pool:
-        list(pool.map(lambda shard: shard.drive(WARM_UP_STEPS, config), shards))  # compiles, with --compile
-        total = _timed(lambda: list(pool.map(lambda shard: shard.drive(steps, config), shards)))[1]
-    controller = sum(shard.controller for shard in shards)
-    dynamics = sum(shard.dynamics for shard in shards)
+        list(pool.map(lambda shard: rollout(*shard, steps=WARM_UP_STEPS), shards))  # compiles, with --compile
+        timed = [(_TimedPolicy(shard_policy), _TimedEnv(env), env.observe()) for shard_policy, env, _ in shards]
+        total = _timed(lambda: list(pool.map(lambda shard: rollout(*shard, steps=steps), timed)))[1]
+    controller = sum(shard_policy.seconds for shard_policy, _, _ in timed)
+    dynamics = sum(env.seconds for _, env, _ in timed)
     busy = controller + dynamics  # summed over the threads
     result = {"envs": population * 10, "s_per_generation": total * config.duration / steps,
               "agent_steps_per_s": population * 10 * config.n_agents * steps / total,
               "controller": controller / busy, "step": dynamics / busy}
     if not compile_env:  # compiled, the sensing is fused with the drops into one graph
-        sensing = sum(min(_timed(shard.env.observe)[1] for _ in range(5)) for shard in shards) * steps
+        sensing = sum(min(_timed(env.observe)[1] for _ in range(5)) for _, env, _ in shards) * steps
         result["sensing"] = min(sensing, dynamics) / busy
         result["dynamics"] = max(dynamics - sensing, 0.0) / busy
     return result
-
-
-@dataclass
-class _Shard:
-    """One thread's environments and controllers, and the seconds it spent in each."""
-
-    env: ForagingEnv | ReferenceStep
-    policy: BatchedPolicy
-    observations: torch.Tensor
-    controller: float = 0.0
-    dynamics: float = 0.0
-
-    def drive(self, steps: int, config: ForagingConfig) -> None:
-        shape = (self.policy.population_size, 10, config.n_agents, config.obs_dim)
-        self.controller = self.dynamics = 0.0
-        for _ in range(steps):
-            outputs, spent = _timed(lambda: self.policy(self.observations.view(shape)))
-            self.controller += spent
-            wheels = outputs_to_wheels(outputs, config).view(-1, config.n_agents, 3)
-            (self.observations, *_), spent = _timed(lambda: self.env.step(wheels))
-            self.dynamics += spent
 
 
 def _split(result: dict) -> str:
@@ -104,8 +108,6 @@ def _split(result: dict) -> str:
 def bench_algo(algo: str, population: int, n_envs: int, generations: int, device: str, compiled: bool,
                eval_threads: int = 1) -> dict:
     """Time full generations of ``algo`` at the paper's size (after one warm-up generation)."""
-    from algorithms import make_optimizer
-
     config = ForagingConfig()
     optimizer = make_optimizer(algo, obs_dim=config.obs_dim, population_size=population, seed=0, device=device)
     generator = torch.Generator().manual_seed(0)
@@ -128,7 +130,8 @@ def bench_algo(algo: str, population: int, n_envs: int, generations: int, device
     return per
 
 
-def main(argv=None) -> None:
+def main(argv=None, env_class: type = ForagingEnv) -> None:
+    """The benchmark's command line; ``env_class``: the step the environment benchmark times."""
     parser = argparse.ArgumentParser(prog="python -m lifelong_evo.bench", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", default=None, help="time a full generation of this optimiser (default: env only)")
@@ -143,15 +146,17 @@ def main(argv=None) -> None:
                         help="threads that each play a slice of the controllers (use with --compile --threads 1)")
     parser.add_argument("--compile", action="store_true", help="torch.compile the environment's step (compiled during the untimed warm-up)")
     parser.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
-    parser.add_argument("--reference", action="store_true",
-                        help="time the plain step the speed goals were set with, not this env (env only; "
-                             "compares a machine with theirs, see lifelong_evo/bench_reference.py)")
     args = parser.parse_args(argv)
-    if args.reference and args.algo:
-        parser.error("--reference times the environment step alone: drop --algo or --reference")
+    config = ForagingConfig()
+    if env_class is not ForagingEnv and args.algo:
+        parser.error(f"{env_class.__name__} is timed as the environment step alone: drop --algo")
+    if not 1 <= args.steps <= config.duration - WARM_UP_STEPS:
+        parser.error(f"--steps must be from 1 to {config.duration - WARM_UP_STEPS}: the timed steps follow the "
+                     f"warm-up within one {config.duration}-step episode")
     torch.set_num_threads(args.threads)
     print(f"threads={torch.get_num_threads()} eval_threads={args.eval_threads} device={args.device} "
-          f"compile={'on' if args.compile else 'off'}" + (" step=reference" if args.reference else ""))
+          f"compile={'on' if args.compile else 'off'}"
+          + ("" if env_class is ForagingEnv else f" step={env_class.__name__}"))
     if args.algo:
         # under --compile the eager figure comes first, so that one call shows what compiling buys
         for compiled in ([False, True] if args.compile else [False]):
@@ -162,11 +167,10 @@ def main(argv=None) -> None:
                   f"regularise+tell {result['tell']:.3f} s; {result['s_per_generation']:.3f} s/generation")
         print(f"s_per_generation={result['s_per_generation']:.3f}")
         return
-    config = ForagingConfig()
     sizes = [int(s) for s in args.also.split(",") if s] + [args.envs]
     result = {}
     for n_envs in sizes:
-        result = bench_env(n_envs, args.steps, config, args.device, args.compile, args.eval_threads, args.reference)
+        result = bench_env(n_envs, args.steps, config, args.device, args.compile, args.eval_threads, env_class)
         print(f"envs={result['envs']:>6} x 500 steps: {result['s_per_generation']:.3f} s/generation, "
               f"{result['agent_steps_per_s'] / 1e6:.2f} M agent-steps/s; split: {_split(result)}")
     print(f"s_per_generation={result['s_per_generation']:.3f}")

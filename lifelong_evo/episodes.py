@@ -1,4 +1,4 @@
-"""Playing single episodes with full state traces, for recordings and replays."""
+"""Single episodes with full state traces, for recordings and replays (played by ``evaluate.rollout``)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -7,7 +7,9 @@ import numpy as np
 import torch
 
 from algorithms.base import BatchedPolicy
-from envs import ForagingConfig, ForagingEnv, Task, outputs_to_wheels
+from envs import ForagingConfig, ForagingEnv, ForagingState, Task
+
+from .evaluate import rollout
 
 
 @dataclass
@@ -17,10 +19,10 @@ class Episode:
     task: str
     target: int
     agent_pos: np.ndarray       # (T + 1, A, 2)
-    carried_colour: np.ndarray  # (T + 1, A): colour id of the carried box, 0 for none
+    carried_color: np.ndarray   # (T + 1, A): colour id of the carried box, 0 for none
     box_pos: np.ndarray         # (T + 1, K, 2)
     box_present: np.ndarray     # (T + 1, K) bool
-    box_colour: np.ndarray      # (K,)
+    box_color: np.ndarray       # (K,)
     rewards: np.ndarray         # (T,)
 
     @property
@@ -32,35 +34,28 @@ def play_episodes(policy: BatchedPolicy, config: ForagingConfig, task: Task, see
                   device: str | torch.device = "cpu") -> list[Episode]:
     """A one-controller ``policy`` plays one episode per seed (all at once, as one batch)."""
     env = ForagingEnv(config, batch_size=len(seeds), device=device)
-    observations = env.reset(state=_states(env, task, seeds))
+    single = ForagingEnv(config, batch_size=1, device=device)
+    observations = env.reset(state=ForagingState.cat([single.sample_state(task, seed) for seed in seeds]))
     traces = [env.state]
     rewards = []
-    for _ in range(config.duration):
-        outputs = policy(observations[None])[0]
-        observations, reward, done, _ = env.step(outputs_to_wheels(outputs, config))
+
+    def trace(env: ForagingEnv, reward: torch.Tensor) -> None:
         traces.append(env.state)
         rewards.append(reward)
-        if bool(done.all()):
-            break
+
+    rollout(policy, env, observations, observer=trace)
     reward = torch.stack(rewards).cpu().numpy()
     episodes = []
     for b in range(len(seeds)):
-        colour = traces[0].box_color[b].cpu().numpy()
-        carried = np.stack([np.where(s.carrying[b].cpu().numpy() >= 0, colour[s.carrying[b].clamp(min=0).cpu().numpy()], 0)
+        color = traces[0].box_color[b].cpu().numpy()
+        carried = np.stack([np.where(s.carrying[b].cpu().numpy() >= 0, color[s.carrying[b].clamp(min=0).cpu().numpy()], 0)
                             for s in traces])
-        steps = int(traces[-1].steps[b])
+        steps = int(traces[-1].steps[b])  # steps after an episode's end leave its state as it was
         episodes.append(Episode(
             task=task.name, target=task.target,
             agent_pos=np.stack([s.agent_pos[b].cpu().numpy() for s in traces])[: steps + 1],
-            carried_colour=carried[: steps + 1],
+            carried_color=carried[: steps + 1],
             box_pos=np.stack([s.box_pos[b].cpu().numpy() for s in traces])[: steps + 1],
             box_present=np.stack([s.box_present[b].cpu().numpy() for s in traces])[: steps + 1],
-            box_colour=colour, rewards=reward[:steps, b]))
+            box_color=color, rewards=reward[:steps, b]))
     return episodes
-
-
-def _states(env: ForagingEnv, task: Task, seeds: list[int]):
-    from envs import ForagingState
-
-    single = ForagingEnv(env.config, batch_size=1, device=env.device)
-    return ForagingState.cat([single.sample_state(task, seed) for seed in seeds])

@@ -1,11 +1,13 @@
-"""Scoring a whole population on several tasks in one batched environment call (or one per
+"""Playing episodes: ``rollout``, the one loop in which controllers drive environments (for
+fitness, for the recording's and replay's episodes, for the benchmark), and ``evaluate``, which
+scores a whole population on several tasks in one batched environment call (or one per
 evaluation thread, each over a slice of the population)."""
 from __future__ import annotations
 
 import functools
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
-from typing import Iterator, Sequence
+from typing import Callable, Iterator, Sequence
 
 import torch
 
@@ -77,25 +79,40 @@ def run_episodes(policy: BatchedPolicy, config: ForagingConfig, episodes: Foragi
         return torch.cat(list(totals))
 
 
-def _play(policy: BatchedPolicy, config: ForagingConfig, episodes: ForagingState, device, dtype,
-          compiled: bool, thread: int) -> torch.Tensor:
-    """``run_episodes`` for one evaluation thread. The batch is population-major, ``(P * E)``
-    environments, so the policy sees its observations as ``(P, E, agents, obs_dim)`` and each
-    controller meets the same E episodes."""
-    population = policy.population_size
-    n_episodes = episodes.target.shape[0]
-    env = _env(config, population * n_episodes, str(device), dtype, compiled, thread)
-    tiled = episodes.index(torch.arange(n_episodes).repeat(population))
-    observations = env.reset(state=tiled)
-    totals = torch.zeros(population * n_episodes, dtype=dtype, device=device)
-    shape = (population, n_episodes, config.n_agents, config.obs_dim)
-    for step in range(config.duration):
+DONE_CHECK_EVERY = 25
+"""Steps between checks whether every episode has ended: a check waits for the device."""
+
+
+def rollout(policy: BatchedPolicy, env: ForagingEnv, observations: torch.Tensor, steps: int | None = None,
+            observer: Callable[[ForagingEnv, torch.Tensor], None] | None = None) -> torch.Tensor:
+    """The controllers of ``policy`` drive ``env`` from ``observations`` (what its reset returned)
+    for ``steps`` steps (default: an episode's length) or until every episode has ended. The
+    batch is population-major: controller p drives environments p*E to (p+1)*E - 1, so the policy
+    sees ``(population, E, agents, obs_dim)`` observations. ``observer(env, rewards)`` is called
+    after every step (the recordings trace episodes with it). Returns the rewards summed per
+    environment, ``(population * E,)``."""
+    config = env.config
+    shape = (policy.population_size, -1, config.n_agents, config.obs_dim)
+    totals = torch.zeros(observations.shape[0], dtype=observations.dtype, device=observations.device)
+    for step in range(config.duration if steps is None else steps):
         outputs = policy(observations.view(shape))
         observations, rewards, done, _ = env.step(outputs_to_wheels(outputs, config).view(-1, config.n_agents, 3))
         totals += rewards
-        if step % 25 == 24 and bool(done.all()):
+        if observer is not None:
+            observer(env, rewards)
+        if step % DONE_CHECK_EVERY == DONE_CHECK_EVERY - 1 and bool(done.all()):
             break
-    return totals.view(population, n_episodes)
+    return totals
+
+
+def _play(policy: BatchedPolicy, config: ForagingConfig, episodes: ForagingState, device, dtype,
+          compiled: bool, thread: int) -> torch.Tensor:
+    """``run_episodes`` for one evaluation thread: every controller meets the same E episodes."""
+    population = policy.population_size
+    n_episodes = episodes.target.shape[0]
+    env = _env(config, population * n_episodes, str(device), dtype, compiled, thread)
+    observations = env.reset(state=episodes.index(torch.arange(n_episodes).repeat(population)))
+    return rollout(policy, env, observations).view(population, n_episodes)
 
 
 def evaluate(policy: BatchedPolicy, config: ForagingConfig, tasks: Sequence[Task], n_envs: int,

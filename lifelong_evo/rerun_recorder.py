@@ -293,7 +293,7 @@ class RerunRecorder(Recorder):
             return columns
 
         all_steps = np.arange(steps)
-        carried = episode.carried_colour
+        carried = episode.carried_color
         palette = _palette()
         agent_colours = palette[np.clip(carried, 0, len(palette) - 1)].reshape(-1, 3)
         stream.send_columns(f"{path}/agents", indexes=indexes(all_steps),
@@ -312,7 +312,7 @@ class RerunRecorder(Recorder):
         changed[1:] = (present[1:] != present[:-1]).any(axis=1) | \
             ((box_screen[1:] != box_screen[:-1]).any(axis=2) & present[1:]).any(axis=1)
         rows = np.flatnonzero(changed)
-        box_colours = palette[np.clip(episode.box_colour, 0, len(palette) - 1)]
+        box_colours = palette[np.clip(episode.box_color, 0, len(palette) - 1)]
         counts = present[rows].sum(axis=1)
         positions = np.concatenate([box_screen[t][present[t]] for t in rows]) if counts.sum() else \
             np.zeros((0, 2), np.float32)

@@ -1,18 +1,24 @@
-"""The benchmark's contract at a tiny size: its last line is ``s_per_generation=<seconds>``."""
+"""The benchmark's contract at a tiny size: its last line is ``s_per_generation=<seconds>``, also for
+the reference step's script (benchmarks/reference_step.py)."""
+import os
 import re
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 import torch
 
+from benchmarks.reference_step import ReferenceStep
 from envs import TASKS, ForagingConfig, ForagingEnv, ForagingState
 from lifelong_evo.bench import main
-from lifelong_evo.bench_reference import ReferenceStep
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.mark.parametrize("argv", [
     ["--envs", "40", "--also", "20", "--steps", "3", "--eval-threads", "2"],
     ["--algo", "openai-es", "--population", "4", "--evals", "1", "--generations", "1", "--eval-threads", "2"],
-    ["--reference", "--envs", "20", "--also", "", "--steps", "2"],
 ])
 def test_last_line_is_seconds_per_generation(argv, capsys):
     main(argv)
@@ -71,7 +77,23 @@ def test_reference_step_senses_what_the_env_senses():
                                reference.observe()[untied])
 
 
-def test_reference_with_an_algorithm_is_refused(capsys):
+def test_the_reference_script_times_its_step(capsys):
+    """``python benchmarks/reference_step.py`` runs the environment benchmark on ``ReferenceStep``."""
+    result = subprocess.run([sys.executable, str(ROOT / "benchmarks/reference_step.py"), "--envs", "20", "--also", "",
+                             "--steps", "2"], capture_output=True, text=True, cwd=ROOT, timeout=300,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.strip().splitlines()
+    assert lines[0].endswith("step=ReferenceStep") and re.fullmatch(r"s_per_generation=\d+\.\d{3}", lines[-1])
+
+
+def test_the_reference_step_with_an_algorithm_is_refused(capsys):
     with pytest.raises(SystemExit):
-        main(["--reference", "--algo", "neat"])
-    assert "drop --algo or --reference" in capsys.readouterr().err
+        main(["--algo", "neat"], env_class=ReferenceStep)
+    assert "ReferenceStep is timed as the environment step alone: drop --algo" in capsys.readouterr().err
+
+
+def test_steps_beyond_an_episode_are_refused(capsys):
+    with pytest.raises(SystemExit):
+        main(["--steps", "600"])
+    assert "--steps must be from 1 to 497" in capsys.readouterr().err

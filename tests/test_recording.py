@@ -204,8 +204,8 @@ def test_paper_scale_recording_stays_small(tmp_path):
                 present[rng.integers(0, T, 30), rng.integers(0, K, 30)] = False
                 recorder.log_episode(g, phase, names[phase], TASKS[task], Episode(
                     task=task, target=TASKS[task].target, agent_pos=positions,
-                    carried_colour=rng.choice([0, 3, 4], (T, A)), box_pos=rng.integers(2, 18, (T, K, 2)) * 1.0,
-                    box_present=present, box_colour=rng.choice([3, 4], K), rewards=rng.integers(-1, 3, T - 1) * 1.0))
+                    carried_color=rng.choice([0, 3, 4], (T, A)), box_pos=rng.integers(2, 18, (T, K, 2)) * 1.0,
+                    box_present=present, box_color=rng.choice([3, 4], K), rewards=rng.integers(-1, 3, T - 1) * 1.0))
     recorder.close()
     size = path.stat().st_size
     assert size < 15_000_000, f"{size / 1e6:.1f} MB"
@@ -379,8 +379,8 @@ def small_episode(task: str, steps: int = 6, agents: int = 5, boxes: int = 4):
     present = np.ones((steps, boxes), bool)
     present[3:, 0] = False  # box 0 picked up at step 3
     return Episode(task=task, target=TASKS[task].target, agent_pos=rng.random((steps, agents, 2)) * 20,
-                   carried_colour=np.zeros((steps, agents), int), box_pos=np.full((steps, boxes, 2), 5.0),
-                   box_present=present, box_colour=np.array([3, 4, 3, 4]), rewards=np.ones(steps - 1))
+                   carried_color=np.zeros((steps, agents), int), box_pos=np.full((steps, boxes, 2), 5.0),
+                   box_present=present, box_color=np.array([3, 4, 3, 4]), rewards=np.ones(steps - 1))
 
 
 def test_episodes_off_the_schedule_update_the_blueprint(tmp_path, monkeypatch):

@@ -1,14 +1,16 @@
-"""The step the speed goals were set with, for ``python -m lifelong_evo.bench --reference``.
+"""The step the speed goals were set with: ``python benchmarks/reference_step.py [--envs N ...]``
+times it as ``python -m lifelong_evo.bench`` times the environment (the same options but
+``--algo``; the last line is ``s_per_generation=<seconds>``).
 
 The speed goals came with figures measured on a prototype step: batch-last tensors,
 ``torch.topk`` over the sensed candidates, one-hots by ``one_hot`` (the goals and figures:
 docs/performance.md). ``ReferenceStep`` is that plain formulation, so that a machine can be
 compared with the one those figures came from.
-It is *not* the paper's environment: two agents may pick the same box, respawns are drawn
-from a ``torch.Generator`` (x and y from one range), and tied candidates are sensed in
-``topk``'s order, not the spec's index order. It senses what the environment senses otherwise
-(tested) and does about the same work per step, which is all a benchmark needs. Use
-``envs.ForagingEnv`` for anything else.
+It is *not* the paper's environment, which is why it lives outside the installed packages: two
+agents may pick the same box, respawns are drawn from a ``torch.Generator`` (x and y from one
+range), tied candidates are sensed in ``topk``'s order, not the spec's index order, and it keeps
+no reward. It senses what the environment senses otherwise (tests/test_bench.py) and does about
+the same work per step, which is all a benchmark needs. Use ``envs.ForagingEnv`` for anything else.
 """
 from __future__ import annotations
 
@@ -46,14 +48,17 @@ class ReferenceStep:
         self.color = torch.randint(3, 3 + c.n_colors, (c.n_boxes, B), generator=generator).to(dev)
         self.present = torch.ones(c.n_boxes, B, dtype=torch.bool, device=dev)
         self.target = torch.full((B,), task.target, device=dev)
+        self._no_reward = torch.zeros(B, device=dev)
+        self._not_done = torch.zeros(B, dtype=torch.bool, device=dev)
         return self.observe()
 
     def step(self, wheels: torch.Tensor):
+        """``ForagingEnv.step``'s return, with no reward and no episode end."""
         respawn_x, respawn_y = self._cells(self.carrying.shape), self._cells(self.carrying.shape)
         (observations, self.ax, self.ay, self.heading, self.carrying, self.bx, self.by,
          self.present) = self._advance(wheels, respawn_x, respawn_y, self.ax, self.ay, self.heading,
                                        self.carrying, self.bx, self.by, self.present)
-        return observations, None, None, None
+        return observations, self._no_reward, self._not_done, {}
 
     def _cells(self, shape) -> torch.Tensor:
         high = int(self.config.size) - 1
@@ -110,3 +115,9 @@ class ReferenceStep:
             F.one_hot(self.target - 3, c.n_colors).T[:, None].expand(-1, A, -1),
         ))
         return features.float().permute(2, 1, 0).contiguous()                             # (B, A, obs_dim)
+
+
+if __name__ == "__main__":
+    from lifelong_evo.bench import main
+
+    main(env_class=ReferenceStep)
