@@ -23,7 +23,7 @@ class UnknownAlgorithmError(ValueError):
 
 
 def make_optimizer(name: str, *, obs_dim: int, population_size: int, seed: int,
-                   regularization: float = 0.0, device: str = "cpu", **options) -> Optimizer:
+                   reg: float = 0.0, device: str = "cpu", **options) -> Optimizer:
     """Build the optimiser ``name`` for controllers with ``obs_dim`` inputs and 3 outputs;
     ``options`` are fields of its ``Options`` (ValueError for a value out of range)."""
     try:
@@ -31,10 +31,10 @@ def make_optimizer(name: str, *, obs_dim: int, population_size: int, seed: int,
     except KeyError:
         raise UnknownAlgorithmError(
             f"unknown algorithm {name!r}: choose one of {', '.join(REGISTRY)}") from None
-    if regularization and not cls.has_regularizer:
+    if reg and not cls.has_regularizer:
         raise ValueError(f"algorithm {name!r} has no regulariser: drop --reg or use another algorithm")
     return cls(obs_dim=obs_dim, population_size=population_size, seed=seed,
-               regularization=regularization, device=device, **options)
+               reg=reg, device=device, **options)
 
 
 def policy_from_export(exported: dict, device: str = "cpu") -> BatchedPolicy:

@@ -77,7 +77,7 @@ class Optimizer(ABC):
     name: ClassVar[str]
     """Registry name, e.g. ``"neat"``."""
     has_regularizer: ClassVar[bool] = True
-    """Whether ``regularization > 0`` means anything for this algorithm."""
+    """Whether ``reg > 0`` (lambda, the regulariser's strength) means anything for this algorithm."""
     Options: ClassVar[type[OptimizerOptions]] = OptimizerOptions
     """The options the constructor takes as keyword arguments (none by default)."""
 

@@ -116,7 +116,7 @@ class ESOptimizer(Optimizer):
             raise ValueError(f"{cls.name} samples mirrored pairs: the population must be even, got {population_size}")
 
     def __init__(self, *, obs_dim: int, population_size: int = 300, seed: int,
-                 regularization: float = 0.0, device: str | torch.device = "cpu", **options):
+                 reg: float = 0.0, device: str | torch.device = "cpu", **options):
         self.options = self.Options(**options)
         self.layer_sizes = layer_sizes_for(obs_dim, self.options.hidden)
         self.n_parameters = n_parameters(self.layer_sizes)
@@ -126,7 +126,7 @@ class ESOptimizer(Optimizer):
         self.learning_rate = float(self.options.learning_rate)
         self.device = torch.device(device)
         self.seed = int(seed)
-        self.regularizer = Regularizer(regularization, n_parameters=self.n_parameters,
+        self.regularizer = Regularizer(reg, n_parameters=self.n_parameters,
                                        reference=self.options.reference, importance=self.options.importance,
                                        device=self.device)
         centre_init = torch.zeros(self.n_parameters, dtype=torch.float32, device=self.device)

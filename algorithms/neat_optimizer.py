@@ -93,13 +93,13 @@ class NeatOptimizer(Optimizer):
     diagnostics = ("distance_mean", "distance_std", "disabled_fraction")
 
     def __init__(self, *, obs_dim: int, population_size: int, seed: int,
-                 regularization: float = 0.0, device: str | torch.device = "cpu", **options):
+                 reg: float = 0.0, device: str | torch.device = "cpu", **options):
         self.options = self.Options(**options)
-        if not (math.isfinite(regularization) and regularization >= 0):
-            raise ValueError(f"regularization must be a finite number >= 0, got {regularization}")
+        if not (math.isfinite(reg) and reg >= 0):
+            raise ValueError(f"reg (lambda) must be a finite number >= 0, got {reg}")
         self.obs_dim = int(obs_dim)
         self.seed = int(seed)
-        self.regularization = float(regularization)
+        self.reg = float(reg)
         self.references = self.options.references
         self.unconnected_outputs = self.options.unconnected_outputs
         self.genetics = self.options.genetics
@@ -196,12 +196,12 @@ class NeatOptimizer(Optimizer):
         return self._distances
 
     def regularise(self, fitness: torch.Tensor) -> torch.Tensor:
-        """``fitness - regularization * mean distance to the references``; ``fitness`` itself
-        when ``regularization == 0`` or before the first ``end_task``."""
-        if self.regularization == 0 or not self.reference_genomes:
+        """``fitness - reg * mean distance to the references`` (``reg``: lambda); ``fitness``
+        itself when ``reg == 0`` or before the first ``end_task``."""
+        if self.reg == 0 or not self.reference_genomes:
             return fitness
         distance = self.distances_to_references().to(fitness.device)
-        return (fitness.double() - self.regularization * distance).to(fitness.dtype)
+        return (fitness.double() - self.reg * distance).to(fitness.dtype)
 
     def tell(self, fitness: torch.Tensor, selection_fitness: torch.Tensor) -> GenerationReport:
         genomes = self.asked_genomes

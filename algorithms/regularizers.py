@@ -70,14 +70,14 @@ def penalty(params: torch.Tensor, reference: torch.Tensor, importance: torch.Ten
     return sq.mean(dim=-1)
 
 
-def regularised_fitness(fitness: torch.Tensor, params: torch.Tensor, lam: float,
+def regularised_fitness(fitness: torch.Tensor, params: torch.Tensor, reg: float,
                         reference: torch.Tensor | None, importance: torch.Tensor | None = None) -> torch.Tensor:
-    """``fitness - lam * penalty(params, reference, importance)``; ``fitness`` unchanged (a copy)
-    when ``lam == 0`` or there is no reference yet."""
-    if lam == 0 or reference is None:
+    """``fitness - reg * penalty(params, reference, importance)`` (``reg``: lambda); ``fitness``
+    unchanged (a copy) when ``reg == 0`` or there is no reference yet."""
+    if reg == 0 or reference is None:
         return fitness.clone()
     pen = penalty(params, reference, importance)
-    return fitness - lam * pen.to(device=fitness.device, dtype=fitness.dtype)
+    return fitness - reg * pen.to(device=fitness.device, dtype=fitness.dtype)
 
 
 def normalise_importance(w: torch.Tensor) -> torch.Tensor:
@@ -112,7 +112,7 @@ class Regularizer:
     ``__call__(fitness, params)`` gives the regularised fitness.
     """
 
-    def __init__(self, lam: float, *, n_parameters: int, reference: str = "centre",
+    def __init__(self, reg: float, *, n_parameters: int, reference: str = "centre",
                  importance: str = "l2", device: str | torch.device = "cpu"):
         if reference == "center":
             reference = "centre"
@@ -120,10 +120,10 @@ class Regularizer:
             raise ValueError(f"reference must be one of {REFERENCES}, got {reference!r}")
         if importance not in IMPORTANCES:
             raise ValueError(f"importance must be one of {IMPORTANCES}, got {importance!r}")
-        lam = float(lam)
-        if not lam >= 0:
-            raise ValueError(f"regularization (lambda) must be >= 0, got {lam}")
-        self.lam, self.reference_mode, self.importance_mode = lam, reference, importance
+        reg = float(reg)
+        if not reg >= 0:
+            raise ValueError(f"reg (lambda) must be >= 0, got {reg}")
+        self.reg, self.reference_mode, self.importance_mode = reg, reference, importance
         self.n_parameters, self.device = int(n_parameters), torch.device(device)
         self.reference: torch.Tensor | None = None
         self.importance: torch.Tensor | None = None
@@ -135,7 +135,7 @@ class Regularizer:
         self._sens_count = 0
 
     def __call__(self, fitness: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
-        return regularised_fitness(fitness, params, self.lam, self.reference, self.importance)
+        return regularised_fitness(fitness, params, self.reg, self.reference, self.importance)
 
     @property
     def needs_sensitivity(self) -> bool:
@@ -187,14 +187,16 @@ class Regularizer:
         self._sens_count = 0
 
     def state_dict(self) -> dict[str, Any]:
-        return {"lam": self.lam, "reference_mode": self.reference_mode,
+        return {"reg": self.reg, "reference_mode": self.reference_mode,
                 "importance_mode": self.importance_mode, "reference": self.reference,
                 "importance": self.importance, "tasks_ended": self.tasks_ended,
                 "best_params": self.best_params, "best_fitness": self.best_fitness,
                 "sensitivity": self._sens.clone(), "sensitivity_count": self._sens_count}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        for key in ("lam", "reference_mode", "importance_mode"):
+        if "lam" in state:  # a checkpoint written before lambda was called reg everywhere
+            state = {**state, "reg": state["lam"]}
+        for key in ("reg", "reference_mode", "importance_mode"):
             if state[key] != getattr(self, key):
                 raise ValueError(f"checkpoint has regulariser {key}={state[key]!r}, "
                                  f"this optimiser {getattr(self, key)!r}")

@@ -159,10 +159,10 @@ class ForagingConfig:
     def check_task(self, task: Task) -> None:
         """Raise ConfigError unless ``task`` can run in this arena."""
         known = set(self.colors)
-        for colour in (task.target, *task.season):
-            if colour not in known:
+        for color in (task.target, *task.season):
+            if color not in known:
                 raise ConfigError(
-                    f"task {task.name!r} uses colour id {colour}, which this arena does not know "
+                    f"task {task.name!r} uses colour id {color}, which this arena does not know "
                     f"(colors={list(self.colors)}): add it to colors")
         if task.target not in task.season:
             raise ConfigError(f"task {task.name!r}: target {task.target} is not in its season {list(task.season)}")

@@ -234,7 +234,7 @@ class ForagingEnv:
         self._cells_per_row = math.ceil(c.size) + 1  # box coordinates are integers in [0, size]
         self._cell_count = self._cells_per_row ** 2
         self._earlier_agents = torch.ones(c.n_agents, c.n_agents, dtype=torch.int32, device=self.device).tril(-1)[..., None]
-        self._colour_ids = torch.arange(3, 3 + c.n_colors, dtype=torch.int32, device=self.device)[:, None]
+        self._color_ids = torch.arange(3, 3 + c.n_colors, dtype=torch.int32, device=self.device)[:, None]
         # candidates: 4 walls (whose distances go down to -1: the spec's "- 1"), agents, boxes;
         # farther than the sensor range nothing is sensed or picked, so distances clamp above it
         self._first_agent = 4
@@ -256,7 +256,7 @@ class ForagingEnv:
         target = torch.tensor([t.target for t in tasks], dtype=torch.long, device=self.device)
         season = torch.zeros(n, self.config.n_colors, dtype=torch.bool, device=self.device)
         for i, task in enumerate(tasks):
-            season[i, [colour - 3 for colour in task.season]] = True
+            season[i, [color - 3 for color in task.season]] = True
         return target, season
 
     def set_tasks(self, tasks: Task | Sequence[Task]) -> None:
@@ -277,12 +277,12 @@ class ForagingEnv:
         n_target = int(c.n_boxes * c.rate_target)
         others = season.cpu().clone()
         others[torch.arange(n), target.cpu() - 3] = False
-        colours = torch.empty(n, c.n_boxes, dtype=torch.long)
-        colours[:, :n_target] = target.cpu()[:, None]
+        colors = torch.empty(n, c.n_boxes, dtype=torch.long)
+        colors[:, :n_target] = target.cpu()[:, None]
         if n_target < c.n_boxes:
             drawn = torch.multinomial(others.double(), c.n_boxes - n_target, replacement=True, generator=generator)
-            colours[:, n_target:] = drawn + 3
-        colours = colours.gather(1, torch.rand(n, c.n_boxes, generator=generator).argsort(dim=1))
+            colors[:, n_target:] = drawn + 3
+        colors = colors.gather(1, torch.rand(n, c.n_boxes, generator=generator).argsort(dim=1))
         u = torch.rand(n, c.n_agents, 3, generator=generator, dtype=torch.float64) * 2 - 1
         slots = torch.arange(1, c.n_agents + 1, dtype=torch.float64) * c.size / (c.n_agents + 1)
         agent_pos = torch.stack((2 + u[..., 0], slots + u[..., 1]), dim=-1)
@@ -291,7 +291,7 @@ class ForagingEnv:
         return ForagingState(
             agent_pos=agent_pos.to(dev, self.dtype), heading=(180 + 10 * u[..., 2]).to(dev, self.dtype),
             carrying=torch.full((n, c.n_agents), -1, dtype=torch.long, device=dev),
-            box_pos=box_pos.to(dev, self.dtype), box_color=colours.to(dev),
+            box_pos=box_pos.to(dev, self.dtype), box_color=colors.to(dev),
             box_present=torch.ones(n, c.n_boxes, dtype=torch.bool, device=dev),
             target=target, season=season,
             steps=torch.zeros(n, dtype=torch.long, device=dev),
@@ -581,7 +581,7 @@ class ForagingEnv:
             s_cos,
             torch.sin(heading_rad)[None], torch.cos(heading_rad)[None],
             _one_hot_rows(carried[None], c.n_colors + 1, self.dtype),
-            (target == self._colour_ids)[:, None].to(self.dtype).expand(-1, A, -1),
+            (target == self._color_ids)[:, None].to(self.dtype).expand(-1, A, -1),
         ))                                                                                 # (obs_dim, A, B)
         return parts
 

@@ -39,7 +39,7 @@ class HillClimber(Optimizer):
     has_regularizer = False
     Options = HillClimberOptions
 
-    def __init__(self, *, obs_dim: int, population_size: int, seed: int, regularization: float = 0.0,
+    def __init__(self, *, obs_dim: int, population_size: int, seed: int, reg: float = 0.0,
                  device: str = "cpu", **options):
         options = self.Options(**options)
         self.layer_sizes = layer_sizes_for(obs_dim, options.hidden)

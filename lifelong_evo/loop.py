@@ -57,7 +57,7 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
     tasks = distinct_tasks(phases)
     env_config = config.env_config()
     optimizer = make_optimizer(config.algo, obs_dim=env_config.obs_dim, population_size=config.population,
-                               seed=config.seed, regularization=config.reg, device=config.device,
+                               seed=config.seed, reg=config.reg, device=config.device,
                                **config.algo_options)
     centre = optimizer.centre_index  # ES: the search distribution's centre
     generator = torch.Generator().manual_seed(config.seed)

@@ -181,20 +181,20 @@ class RerunRecorder(Recorder):
             self._stream = stream
         return self._stream
 
-    def _style(self, entity: str, colour, name: str, width: float = 2.0) -> None:
+    def _style(self, entity: str, color, name: str, width: float = 2.0) -> None:
         if entity in self._styled:
             return
         import rerun as rr
 
-        self.stream.log(entity, rr.SeriesLines(colors=[colour], names=[name], widths=[width]), static=True)
+        self.stream.log(entity, rr.SeriesLines(colors=[color], names=[name], widths=[width]), static=True)
         self._styled.add(entity)
 
-    def _scalar(self, generation: int, entity: str, value, colour, name: str, width: float = 2.0) -> None:
+    def _scalar(self, generation: int, entity: str, value, color, name: str, width: float = 2.0) -> None:
         """Buffer one curve point; ``flush_curves`` sends the buffer column-wise (a chunk per curve
         and flush instead of one per point keeps a long run's file small)."""
         if value is None or value == "" or (isinstance(value, float) and np.isnan(value)):
             return
-        self._style(entity, colour, name, width)
+        self._style(entity, color, name, width)
         self._pending.setdefault(entity, []).append((generation, float(value)))
 
     def flush_curves(self) -> None:
@@ -295,16 +295,16 @@ class RerunRecorder(Recorder):
         all_steps = np.arange(steps)
         carried = episode.carried_color
         palette = _palette()
-        agent_colours = palette[np.clip(carried, 0, len(palette) - 1)].reshape(-1, 3)
+        agent_colors = palette[np.clip(carried, 0, len(palette) - 1)].reshape(-1, 3)
         stream.send_columns(f"{path}/agents", indexes=indexes(all_steps),
                             columns=rr.Points2D.columns(positions=screen.reshape(-1, 2),
-                                                        colors=agent_colours).partition([agents] * steps))
+                                                        colors=agent_colors).partition([agents] * steps))
         # trails: per step, each agent's last TRAIL positions (fewer at the start)
         lengths = np.minimum(all_steps + 1, TRAIL)
         strips = [screen[t + 1 - lengths[t]:t + 1, a] for t in range(steps) for a in range(agents)]
         stream.send_columns(f"{path}/trails", indexes=indexes(all_steps),
                             columns=rr.LineStrips2D.columns(strips=strips,
-                                                            colors=agent_colours).partition([agents] * steps))
+                                                            colors=agent_colors).partition([agents] * steps))
         # boxes: only the steps where a box moved, appeared or vanished (the viewer holds the rest)
         box_screen = episode.box_pos[..., ::-1].astype(np.float32)
         present = episode.box_present.astype(bool)
@@ -312,14 +312,14 @@ class RerunRecorder(Recorder):
         changed[1:] = (present[1:] != present[:-1]).any(axis=1) | \
             ((box_screen[1:] != box_screen[:-1]).any(axis=2) & present[1:]).any(axis=1)
         rows = np.flatnonzero(changed)
-        box_colours = palette[np.clip(episode.box_color, 0, len(palette) - 1)]
+        box_colors = palette[np.clip(episode.box_color, 0, len(palette) - 1)]
         counts = present[rows].sum(axis=1)
         positions = np.concatenate([box_screen[t][present[t]] for t in rows]) if counts.sum() else \
             np.zeros((0, 2), np.float32)
-        colours = np.concatenate([box_colours[present[t]] for t in rows]) if counts.sum() else \
+        colors = np.concatenate([box_colors[present[t]] for t in rows]) if counts.sum() else \
             np.zeros((0, 3), np.uint8)
         stream.send_columns(f"{path}/boxes", indexes=indexes(rows),
-                            columns=rr.Points2D.columns(positions=positions, colors=colours).partition(counts))
+                            columns=rr.Points2D.columns(positions=positions, colors=colors).partition(counts))
         cumulative = np.concatenate([[0.0], np.cumsum(episode.rewards, dtype=np.float64)])[:steps]
         stream.send_columns(f"{path}/reward", indexes=[rr.TimeColumn("step", sequence=all_steps)],
                             columns=rr.Scalars.columns(scalars=cumulative))

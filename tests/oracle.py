@@ -248,8 +248,8 @@ def batched_state_from(states: list[OracleState], n_colors: int, dtype=None):
     dtype = dtype or torch.float64
     season = torch.zeros(len(states), n_colors, dtype=torch.bool)
     for b, s in enumerate(states):
-        for colour in s.season:
-            season[b, colour - 3] = True
+        for color in s.season:
+            season[b, color - 3] = True
     return ForagingState(
         agent_pos=torch.tensor([[[x, y] for x, y in zip(s.ax, s.ay)] for s in states], dtype=dtype),
         heading=torch.tensor([s.heading for s in states], dtype=dtype),

@@ -34,7 +34,7 @@ def test_obs_dim(colors, n_neighbors, expected):
 
 
 @pytest.mark.parametrize("colors", [(3, 4, 6), (4, 5, 6, 7), (3, 5), (4, 3, 5, 6), ()])
-def test_non_contiguous_colours(colors):
+def test_non_contiguous_colors(colors):
     with pytest.raises(ConfigError, match="colors"):
         ForagingConfig(colors=colors)
 
@@ -96,7 +96,7 @@ def test_task_target_outside_its_season():
         env.reset(tasks=bad, generator=0)
 
 
-def test_task_colour_unknown_to_the_arena():
+def test_task_color_unknown_to_the_arena():
     env = ForagingEnv(ForagingConfig(), 2)
     with pytest.raises(ConfigError, match="colour id 9"):
         env.reset(tasks=TASKS["cyan"], generator=0)
@@ -160,7 +160,7 @@ def test_box_positions_outside_the_arena(cell):
         env.reset(state=state)
 
 
-def test_explicit_state_with_unknown_colours_or_boxes():
+def test_explicit_state_with_unknown_colors_or_boxes():
     env, state = _valid_state()
     bad = state.clone()
     bad.box_color[0, 0] = 9

@@ -68,8 +68,8 @@ def random_state(rng: random.Random, c: ForagingConfig, task) -> OracleState:
         else:  # any integer cell, near walls and the drop zone too
             bx.append(float(rng.randint(0, top)))
             by.append(float(rng.randint(0, top)))
-    colour_pool = list(task.season) if rng.random() < 0.8 else list(c.colors)
-    color = [rng.choice(colour_pool) for _ in range(K)]
+    color_pool = list(task.season) if rng.random() < 0.8 else list(c.colors)
+    color = [rng.choice(color_pool) for _ in range(K)]
     present = [True] * K
     carrying = [-1] * A
     free = list(range(K))

@@ -273,7 +273,7 @@ def test_pick_radius_is_strict():
     assert env.state.box_present[0, :3].tolist() == [True, False, False]
 
 
-def test_pick_any_colour_wrong_colour_costs_one():
+def test_pick_any_color_wrong_color_costs_one():
     env, obs = make_env([(10.2, 10.0), (12.0, 14.3)], [(10.0, 10.0, BLUE), (12.0, 14.0, RED)])
     obs, reward, done, info = step(env)
     assert info["picked"][0].tolist() == [0, 1]
@@ -507,9 +507,9 @@ def test_reset_sampling_rules():
     assert d.min() >= 2.0, "boxes pairwise at least 2 apart"
     for b in range(B):
         target = tasks[b].target
-        colours = s.box_color[b].tolist()
-        assert colours.count(target) == 10, "exactly int(n_boxes * rate_target) target boxes"
-        assert set(colours) <= set(tasks[b].season)
+        colors = s.box_color[b].tolist()
+        assert colors.count(target) == 10, "exactly int(n_boxes * rate_target) target boxes"
+        assert set(colors) <= set(tasks[b].season)
         assert s.target[b].item() == target
     assert s.box_color.eq(s.target[:, None]).float().mean(0).min() > 0.3, "colours are permuted"
     assert s.box_color.eq(s.target[:, None]).float().mean(0).max() < 0.7, "colours are permuted"
@@ -523,15 +523,15 @@ def test_reset_sampling_rules():
     assert s.season[0].tolist() == [True, True, False, False] and s.season[1].tolist() == [False, False, True, True]
 
 
-def test_reset_other_colours_drawn_from_the_season_only():
+def test_reset_other_colors_drawn_from_the_season_only():
     config = ForagingConfig(rate_target=0.33)
     task = Task(RED, (RED, BLUE, YELLOW))
     env = ForagingEnv(config, 50, dtype=F64)
     env.reset(tasks=task, generator=11)
-    colours = env.state.box_color
-    assert (colours == RED).sum(1).tolist() == [6] * 50, "int(20 * 0.33) = 6 target boxes"
-    assert set(colours.unique().tolist()) == {RED, BLUE, YELLOW}
-    n_blue, n_yellow = (colours == BLUE).sum().item(), (colours == YELLOW).sum().item()
+    colors = env.state.box_color
+    assert (colors == RED).sum(1).tolist() == [6] * 50, "int(20 * 0.33) = 6 target boxes"
+    assert set(colors.unique().tolist()) == {RED, BLUE, YELLOW}
+    n_blue, n_yellow = (colors == BLUE).sum().item(), (colors == YELLOW).sum().item()
     assert abs(n_blue - n_yellow) < 0.15 * (n_blue + n_yellow), "uniform over the other season colours"
     env = ForagingEnv(ForagingConfig(rate_target=1.0), 4, dtype=F64)
     env.reset(tasks=TASKS["green"], generator=1)

@@ -83,7 +83,7 @@ def test_same_seed_same_numbers(name):
 @pytest.mark.parametrize("name", ALGOS)
 @pytest.mark.parametrize("pending", [False, True], ids=["after-tell", "between-ask-and-tell"])
 def test_checkpoint_continues_bit_for_bit(name, pending):
-    kw = {"regularization": 0.5, "importance": "ewc", "reference": "best"}
+    kw = {"reg": 0.5, "importance": "ewc", "reference": "best"}
     a = make(name, **kw)
     for g in range(4):
         generation(a)
@@ -180,8 +180,8 @@ def test_penalty_formula_by_hand():
 
 @pytest.mark.parametrize("name", ALGOS)
 def test_no_penalty_before_first_drift_then_centre_reference(name):
-    lam = 2.0
-    opt = make(name, regularization=lam)
+    reg = 2.0
+    opt = make(name, reg=reg)
     for _ in range(3):
         policy = opt.ask()
         fitness = output_fitness(policy)
@@ -195,7 +195,7 @@ def test_no_penalty_before_first_drift_then_centre_reference(name):
     policy = opt.ask()
     fitness = output_fitness(policy, TARGET_B)
     by_hand = torch.tensor([
-        float(fitness[i]) - lam * sum((float(policy.params[i, j]) - float(centre_at_drift[j])) ** 2
+        float(fitness[i]) - reg * sum((float(policy.params[i, j]) - float(centre_at_drift[j])) ** 2
                                       for j in range(opt.n_parameters)) / opt.n_parameters
         for i in range(opt.population_size)])
     torch.testing.assert_close(opt.regularise(fitness), by_hand, rtol=1e-5, atol=1e-6)
@@ -204,7 +204,7 @@ def test_no_penalty_before_first_drift_then_centre_reference(name):
 
 @pytest.mark.parametrize("name", ["snes", "cmaes"])
 def test_best_reference_is_best_selection_fitness_of_the_task(name):
-    opt = make(name, regularization=1.0, reference="best")
+    opt = make(name, reg=1.0, reference="best")
     best, best_params = -float("inf"), None
     for _ in range(4):
         params, selection = generation(opt)
@@ -223,21 +223,21 @@ def test_best_reference_is_best_selection_fitness_of_the_task(name):
 @pytest.mark.parametrize("name", ALGOS)
 def test_regularisation_holds_the_centre_near_the_reference(name):
     distances = {}
-    for lam in (0.0, 50.0):
-        opt = make(name, regularization=lam)
+    for reg in (0.0, 50.0):
+        opt = make(name, reg=reg)
         for _ in range(8):
             generation(opt, TARGET_A)
         opt.end_task()
         ref = opt.centre.clone()
         for _ in range(15):
             generation(opt, TARGET_B)
-        distances[lam] = float((opt.centre - ref).norm())
+        distances[reg] = float((opt.centre - ref).norm())
     assert distances[50.0] < 0.6 * distances[0.0], distances
 
 
 @pytest.mark.parametrize("name", ["cmaes", "sep-cmaes"])
 def test_cma_ewc_importance_is_normalised_precision(name):
-    opt = make(name, regularization=1.0, importance="ewc")
+    opt = make(name, reg=1.0, importance="ewc")
     for _ in range(3):
         generation(opt)
     s = opt.searcher
@@ -252,7 +252,7 @@ def test_cma_ewc_importance_is_normalised_precision(name):
 def test_ewc_importance_marks_the_parameters_the_fitness_depends_on(name):
     relevant = 4
     opt = ES_ALGORITHMS[name](obs_dim=2, hidden=(2,), population_size=30, seed=0,
-                              regularization=1.0, importance="ewc")
+                              reg=1.0, importance="ewc")
     for _ in range(20):
         theta = opt.ask().params
         fitness = -((theta[:, :relevant] - 1.0) ** 2).sum(dim=1)  # the other parameters do not matter
@@ -276,17 +276,26 @@ def test_gaussian_sensitivity_formula_by_hand():
 
 
 def test_fisher_window_keeps_the_last_generations():
-    reg = Regularizer(1.0, n_parameters=2, importance="ewc")
+    regularizer = Regularizer(1.0, n_parameters=2, importance="ewc")
     mu, sigma = torch.zeros(2), torch.ones(2)
     samples = torch.tensor([[1.0, 0.0], [-1.0, 0.0]])
     for g in range(FISHER_WINDOW + 5):
         scale = 1.0 if g < 5 else 2.0  # the first 5 generations leave the window
-        reg.observe_gaussian(samples * scale, mu, sigma, torch.tensor([1.0, 0.0]))
+        regularizer.observe_gaussian(samples * scale, mu, sigma, torch.tensor([1.0, 0.0]))
     # every kept generation: u = (+0.5, -0.5), z = (+-2, 0): a = (1, 0), b = (0, 0)
-    torch.testing.assert_close(reg.fisher_diagonal(), torch.tensor([1.0, 0.0]))
-    reg.end_task(torch.zeros(2))
-    torch.testing.assert_close(reg.importance, torch.tensor([2.0, 0.0]))
-    assert reg.fisher_diagonal() is None  # the next task starts a new window
+    torch.testing.assert_close(regularizer.fisher_diagonal(), torch.tensor([1.0, 0.0]))
+    regularizer.end_task(torch.zeros(2))
+    torch.testing.assert_close(regularizer.importance, torch.tensor([2.0, 0.0]))
+    assert regularizer.fisher_diagonal() is None  # the next task starts a new window
+
+
+def test_a_checkpoint_from_before_reg_was_named_so_loads():
+    """Regulariser states written as ``lam`` load, and a different lambda is still refused."""
+    state = Regularizer(1.5, n_parameters=2).state_dict()
+    old = {("lam" if key == "reg" else key): value for key, value in state.items()}
+    Regularizer(1.5, n_parameters=2).load_state_dict(old)
+    with pytest.raises(ValueError, match="reg=1.5"):
+        Regularizer(2.0, n_parameters=2).load_state_dict(old)
 
 
 def test_regularizer_rejects_bad_options():

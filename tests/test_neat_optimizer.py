@@ -200,7 +200,7 @@ def test_raw_and_selection_fitness_are_kept_apart():
 @pytest.mark.parametrize("genetics", GENETICS)
 def test_reference_is_the_task_best_by_selection_fitness(genetics):
     obs = _obs(seed=1)
-    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=7, regularization=2.5, genetics=genetics)
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=7, reg=2.5, genetics=genetics)
     _generation(opt, obs)
     # generation 1: genome 11 gets the best selection fitness of the task (not the best raw)
     size = opt.ask().population_size
@@ -254,7 +254,7 @@ def test_reference_is_the_task_best_by_selection_fitness(genetics):
 @pytest.mark.parametrize("genetics", GENETICS)
 def test_penalty_averages_the_last_references(genetics):
     obs = _obs(seed=2)
-    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=12, regularization=1.0, references=2,
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=12, reg=1.0, references=2,
                         genetics=genetics)
     for _task in range(3):
         for _ in range(2):
@@ -272,7 +272,7 @@ def test_penalty_averages_the_last_references(genetics):
                               for r, g in zip(raw.tolist(), opt.asked_genomes)], dtype=torch.float64)
     assert not torch.allclose(opt.regularise(raw), only_last)
 
-    off = NeatOptimizer(obs_dim=41, population_size=POP, seed=8, regularization=0.0)
+    off = NeatOptimizer(obs_dim=41, population_size=POP, seed=8, reg=0.0)
     _generation(off, obs)
     off.end_task()
     raw = _fitness(off.ask(), obs)
@@ -280,13 +280,13 @@ def test_penalty_averages_the_last_references(genetics):
 
 
 @pytest.mark.parametrize("genetics", GENETICS)
-@pytest.mark.parametrize("regularization", [0.0, 2.0])
-def test_diagnostics(genetics, regularization, monkeypatch):
+@pytest.mark.parametrize("reg", [0.0, 2.0])
+def test_diagnostics(genetics, reg, monkeypatch):
     """Per generation: the mean and standard deviation of the regulariser's distance (NaN before
     the first task end), computed once whether the regulariser is on or not, and the mean
     fraction of disabled connections per genome."""
     obs = _obs(seed=5)
-    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=13, regularization=regularization,
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=13, reg=reg,
                         genetics=genetics)
     for _ in range(3):
         _raw, _selection, report = _generation(opt, obs)
@@ -325,7 +325,7 @@ def test_diagnostics(genetics, regularization, monkeypatch):
 @pytest.mark.parametrize("genetics", GENETICS)
 def test_state_dict_round_trip_continues_identically(genetics):
     obs = _obs(seed=3)
-    a = NeatOptimizer(obs_dim=41, population_size=POP, seed=9, regularization=1.5, genetics=genetics)
+    a = NeatOptimizer(obs_dim=41, population_size=POP, seed=9, reg=1.5, genetics=genetics)
     for _ in range(2):
         _generation(a, obs)
     a.end_task()
@@ -338,7 +338,7 @@ def test_state_dict_round_trip_continues_identically(genetics):
     assert a.state_dict()["generation"] == 3  # saving twice changes nothing either
     assert state["genetics"] == genetics
 
-    b = NeatOptimizer(obs_dim=41, population_size=POP, seed=1234, regularization=1.5, genetics=genetics)
+    b = NeatOptimizer(obs_dim=41, population_size=POP, seed=1234, reg=1.5, genetics=genetics)
     b.load_state_dict(state)
     assert b.generation == a.generation == 3
     # the task best is still the population's genome itself (an elite), so its next evaluation
@@ -406,7 +406,7 @@ def _through_a_file(state):
 
 def test_state_round_trip_keeps_every_object_shared_and_every_bit():
     obs = _obs(seed=5)
-    a = NeatOptimizer(obs_dim=41, population_size=POP, seed=11, regularization=0.5)
+    a = NeatOptimizer(obs_dim=41, population_size=POP, seed=11, reg=0.5)
     for step in range(5):
         _generation(a, obs)
         if step in (1, 3):
@@ -421,7 +421,7 @@ def test_state_round_trip_keeps_every_object_shared_and_every_bit():
     a.reference_genomes[0].raw_fitness = 5e-324
     state = _through_a_file(a.state_dict())
 
-    b = NeatOptimizer(obs_dim=41, population_size=POP, seed=99, regularization=0.5)
+    b = NeatOptimizer(obs_dim=41, population_size=POP, seed=99, reg=0.5)
     b.load_state_dict(state)
     _same_state(_neat_state(a), _neat_state(b), {})
 
