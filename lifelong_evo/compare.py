@@ -2,38 +2,48 @@
 
 Finds every run directory (config.json + summary.json) at or under the given paths (so a sweep
 folder works), groups the runs by configuration (``rundir.group_runs``: runs that differ only in
-the seed, the speed settings and the output settings of ``RunConfig`` are one) and writes, to ``--out`` (default: the one folder given, else ``comparison/``):
+the seed, the speed settings and the output settings of ``RunConfig`` are one) and writes, to
+``--out`` (default: the one folder given, else ``comparison/``):
 
 ``comparison.md``    an overview (one line per configuration), then per configuration the paper's
                      table: current performance C per phase (and C_top, the top individual's),
-                     retention R and forgetting F of the
-                     population and the top individual at each later task end, ACC/BWT/FWT;
-                     every value is the mean over seeds with its 95% bootstrap interval
-                     (2000 resamples, fixed seed; one seed: the value alone)
+                     retention R and forgetting F of the population and the top individual at
+                     each later task end, ACC/BWT/FWT; every value is the mean over seeds with its
+                     95% bootstrap interval (2000 resamples, fixed seed; one seed: the value alone)
 ``comparison.csv``   the same values, one line per configuration and metric (with the raw values)
 ``comparison-current[-<schedule>].png``  each configuration's current-performance curve (mean
                      over seeds, min-max band) on a shared drift schedule
 
 The markdown is printed too. ``compare_table(paths)`` returns ``(rows, markdown)`` for reuse.
+
+Model-specific lambda ("m.s. reg", which ``sweep`` adds to its comparison): for each configuration
+without lambda and each seed, the lambda maximising ``C_top(phase 1) + R_top(task of phase 0 at
+the end of phase 1)`` (the top individual's current performance plus its retention of the first
+task at the end of the second task: the controller one would deploy, good at both; ties go to the
+smaller lambda), reported as a configuration of its own with the chosen lambda per seed
+(``select_model_specific``, ``model_specific_report``).
 """
 from __future__ import annotations
 
 import argparse
 import csv
+import json
 import math
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .plots import CONFIG_COLORS, band, draw_drifts, save, shade_phases, stack
-from .rundir import Run, describe_config, group_runs, is_run_dir, load_runs
+from .rundir import Run, configuration_of, describe_config, group_runs, is_run_dir, load_runs
 from .schedule import parse_schedule
 
 RESAMPLES = 2000
 BOOTSTRAP_SEED = 0
 CSV_COLUMNS = ["configuration", "algo", "reg", "schedule", "metric", "n", "mean", "ci_low", "ci_high", "values"]
+TRANSFER = ("ACC_pop", "BWT_pop", "FWT_pop", "ACC_top", "BWT_top", "FWT_top")
 
 
 def bootstrap_ci(values, resamples: int = RESAMPLES, seed: int = BOOTSTRAP_SEED) -> tuple[float, float, float]:
@@ -55,6 +65,29 @@ def _nan(value) -> bool:
     return isinstance(value, float) and math.isnan(value)
 
 
+@dataclass(frozen=True)
+class Estimate:
+    """One metric over seeds: the values present, their mean and its 95% bootstrap interval."""
+
+    values: list[float]
+    mean: float
+    low: float
+    high: float
+
+    @classmethod
+    def of(cls, values) -> Estimate:
+        present = [v for v in values if v is not None and not _nan(v)]
+        return cls(present, *bootstrap_ci(present))
+
+    def __str__(self) -> str:
+        """A table cell: ``-`` for none, the value for one seed, else ``mean [low, high]``."""
+        if math.isnan(self.mean):
+            return "-"
+        if len(self.values) <= 1:
+            return f"{self.mean:.2f}"
+        return f"{self.mean:.2f} [{self.low:.2f}, {self.high:.2f}]"
+
+
 def run_metrics(summary: dict[str, Any]) -> list[tuple[str, str, float | None]]:
     """(section, metric name, value) of one run's summary.json, in table order."""
     out: list[tuple[str, str, float | None]] = []
@@ -73,12 +106,56 @@ def run_metrics(summary: dict[str, Any]) -> list[tuple[str, str, float | None]]:
     return out
 
 
-def _fmt(mean: float, low: float, high: float, n: int) -> str:
-    if math.isnan(mean):
-        return "-"
-    if n <= 1:
-        return f"{mean:.2f}"
-    return f"{mean:.2f} [{low:.2f}, {high:.2f}]"
+Estimates = dict[str, tuple[str, Estimate]]
+"""Metric name -> (its section in ``run_metrics``, its estimate over seeds)."""
+
+
+def estimates(summaries: list[dict[str, Any]]) -> Estimates:
+    """Every metric of ``run_metrics`` over the runs whose summary.json are ``summaries``."""
+    per_metric: dict[str, tuple[str, list]] = {}
+    for summary in summaries:
+        for section, name, value in run_metrics(summary):
+            per_metric.setdefault(name, (section, []))[1].append(value)
+    return {name: (section, Estimate.of(values)) for name, (section, values) in per_metric.items()}
+
+
+def table(header: list[str], rows: list[list[Any]]) -> list[str]:
+    """A markdown table's lines."""
+    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header),
+            *("| " + " | ".join(map(str, row)) + " |" for row in rows)]
+
+
+def _cell(found: Estimates, name: str) -> str:
+    return str(found[name][1]) if name in found else "-"
+
+
+def section(heading: str, intro: str, found: Estimates) -> str:
+    """One configuration's tables: C and C_top per phase, R and F at each later task end, ACC/BWT/FWT."""
+    lines = [heading, "", intro, ""]
+    phases = [k[len("C "):] for k, (kind, _) in found.items() if kind == "current" and k.startswith("C phase ")]
+    if phases:
+        lines += table(["phase", "C (current)", "C_top (top individual)"],
+                       [[where, *(_cell(found, f"{m} {where}") for m in ("C", "C_top"))] for where in phases])
+        lines.append("")
+    wheres = [k[len("R_pop "):] for k, (kind, _) in found.items() if kind == "forgetting" and k.startswith("R_pop ")]
+    if wheres:
+        lines += table(["task at end of phase", "R_pop", "F_pop", "R_top", "F_top"],
+                       [[where, *(_cell(found, f"{m} {where}") for m in ("R_pop", "F_pop", "R_top", "F_top"))]
+                        for where in wheres])
+        lines.append("")
+    if any(kind == "transfer" for kind, _ in found.values()):
+        lines += table(["level", "ACC", "BWT", "FWT"],
+                       [[level, *(_cell(found, f"{m}_{level}") for m in ("ACC", "BWT", "FWT"))] for level in ("pop", "top")])
+        lines.append("")
+    return "\n".join(lines)
+
+
+def csv_rows(label: str, config: dict[str, Any], found: Estimates, reg: Any = None) -> list[dict[str, Any]]:
+    """comparison.csv's rows of one configuration (``reg``: what its reg column says, default its lambda)."""
+    return [{"configuration": label, "algo": config.get("algo"), "reg": config.get("reg") if reg is None else reg,
+             "schedule": config.get("schedule"), "metric": name, "n": len(estimate.values), "mean": estimate.mean,
+             "ci_low": estimate.low, "ci_high": estimate.high, "values": estimate.values}
+            for name, (_, estimate) in found.items()]
 
 
 def compare_table(paths) -> tuple[list[dict[str, Any]], str]:
@@ -88,70 +165,104 @@ def compare_table(paths) -> tuple[list[dict[str, Any]], str]:
     groups = _sorted_groups(group_runs(runs))
     configs = [g[0].config for g in groups]
     rows: list[dict[str, Any]] = []
-    sections: list[str] = []
-    overview = ["| configuration | n seeds | ACC_pop | BWT_pop | FWT_pop | ACC_top | BWT_top | FWT_top |",
-                "|---|---|---|---|---|---|---|---|"]
+    overview, sections = [], []
     for group, config in zip(groups, configs):
         label = describe_config(config, configs)
-        per_metric: dict[str, tuple[str, list]] = {}
-        for run in group:
-            for section, name, value in run_metrics(run.summary):
-                per_metric.setdefault(name, (section, []))[1].append(value)
-        stats = {}
-        for name, (section, values) in per_metric.items():
-            present = [v for v in values if v is not None and not _nan(v)]
-            mean, low, high = bootstrap_ci(present)
-            stats[name] = (section, mean, low, high, len(present))
-            rows.append({"configuration": label, "algo": config.get("algo"), "reg": config.get("reg"),
-                         "schedule": config.get("schedule"), "metric": name, "n": len(present), "mean": mean,
-                         "ci_low": low, "ci_high": high, "values": present})
-        cells = [_fmt(*stats[k][1:]) if k in stats else "-"
-                 for k in ("ACC_pop", "BWT_pop", "FWT_pop", "ACC_top", "BWT_top", "FWT_top")]
-        overview.append(f"| {label} | {len(group)} | " + " | ".join(cells) + " |")
-        sections.append(_section(label, group, stats))
+        found = estimates([run.summary for run in group])
+        rows += csv_rows(label, config, found)
+        overview.append([label, len(group), *(_cell(found, name) for name in TRANSFER)])
+        seeds = ", ".join(str(r.seed) for r in group)
+        sections.append(section(f"## {label}", f"{len(group)} seed(s): {seeds}", found))
     header = [f"# Comparison of {len(runs)} run(s) in {len(groups)} configuration(s)", "",
               "Mean over seeds [95% bootstrap interval, "
               f"{RESAMPLES} resamples]; a single seed shows its value. C: current performance at the end of "
               "a phase (C_top: that of the top individual, the best by selection fitness); R/F: "
               "retention/forgetting of an earlier task (pop: best of the population, top: the "
               "current top individual); ACC/BWT/FWT: average final performance, backward and forward transfer.",
-              "", *overview, ""]
+              "", *table(["configuration", "n seeds", *TRANSFER], overview), ""]
     return rows, "\n".join(header + sections)
-
-
-def _section(label: str, group: list[Run], stats: dict) -> str:
-    seeds = ", ".join(str(r.seed) for r in group)
-    lines = [f"## {label}", "", f"{len(group)} seed(s): {seeds}", ""]
-    phases = [k[len("C "):] for k, v in stats.items() if v[0] == "current" and k.startswith("C phase ")]
-    if phases:
-        lines += ["| phase | C (current) | C_top (top individual) |", "|---|---|---|"]
-        for where in phases:
-            cells = [_fmt(*stats[f"{m} {where}"][1:]) if f"{m} {where}" in stats else "-" for m in ("C", "C_top")]
-            lines.append(f"| {where} | " + " | ".join(cells) + " |")
-        lines.append("")
-    forgetting = [k for k, v in stats.items() if v[0] == "forgetting" and k.startswith("R_pop ")]
-    if forgetting:
-        lines += ["| task at end of phase | R_pop | F_pop | R_top | F_top |", "|---|---|---|---|---|"]
-        for key in forgetting:
-            where = key[len("R_pop "):]
-            cells = [_fmt(*stats[f"{m} {where}"][1:]) if f"{m} {where}" in stats else "-"
-                     for m in ("R_pop", "F_pop", "R_top", "F_top")]
-            lines.append(f"| {where} | " + " | ".join(cells) + " |")
-        lines.append("")
-    transfer = [k for k, v in stats.items() if v[0] == "transfer"]
-    if transfer:
-        lines += ["| level | ACC | BWT | FWT |", "|---|---|---|---|"]
-        for level in ("pop", "top"):
-            cells = [_fmt(*stats[f"{m}_{level}"][1:]) if f"{m}_{level}" in stats else "-"
-                     for m in ("ACC", "BWT", "FWT")]
-            lines.append(f"| {level} | " + " | ".join(cells) + " |")
-        lines.append("")
-    return "\n".join(lines)
 
 
 def _sorted_groups(groups: list[list[Run]]) -> list[list[Run]]:
     return sorted(groups, key=lambda g: (str(g[0].config.get("schedule")), str(g[0].config.get("algo")),
                                          float(g[0].config.get("reg") or 0), g[0].key))
+
+
+# ------------------------------------------------------------------------------- model-specific lambda
+
+CRITERION = "C_top(phase 1) + R_top(task of phase 0 at end of phase 1)"
+
+
+def selection_score(summary: dict[str, Any]) -> float | None:
+    """``C_top(phase 1) + R_top(task of phase 0 at the end of phase 1)``; None before phase 1 ended."""
+    current = summary.get("current_top") or []
+    phases = summary.get("phases") or []
+    if len(current) < 2 or len(phases) < 2:
+        return None
+    rows = [r for r in summary.get("forgetting", []) if r["at_end_of"] == 1 and r["task"] == phases[0]]
+    if not rows or current[1] is None or rows[0]["R_top"] is None:
+        return None
+    return float(current[1]) + float(rows[0]["R_top"])
+
+
+def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]) -> list[dict[str, Any]]:
+    """The model-specific lambda: ``runs`` are (config.json dict, summary.json dict, tag) triples;
+    for each configuration without lambda that was run with several lambdas, and each of its seeds,
+    the run whose lambda maximises ``selection_score`` (ties: the smaller lambda).
+
+    Returns one dict per such configuration: ``config`` (the config of its first chosen run) and
+    ``choices``, one per seed in ascending order: ``seed``, ``reg``, ``score``, ``tag``."""
+    groups: dict[str, dict[str, Any]] = {}
+    for config, summary, tag in runs:
+        rest = {k: v for k, v in configuration_of(config).items() if k != "reg"}
+        group = groups.setdefault(json.dumps(rest, sort_keys=True, default=str),
+                                  {"regs": set(), "by_seed": {}, "configs": {}})
+        group["regs"].add(float(config["reg"]))
+        group["configs"][tag] = config
+        score = selection_score(summary)
+        if score is not None and math.isfinite(score):
+            group["by_seed"].setdefault(config["seed"], []).append((score, float(config["reg"]), tag))
+    result = []
+    for group in groups.values():
+        if len(group["regs"]) < 2 or not group["by_seed"]:
+            continue
+        choices = []
+        for seed in sorted(group["by_seed"]):
+            score, reg, tag = max(group["by_seed"][seed], key=lambda c: (c[0], -c[1]))
+            choices.append({"seed": seed, "reg": reg, "score": score, "tag": tag})
+        result.append({"config": group["configs"][choices[0]["tag"]], "choices": choices})
+    return result
+
+
+def model_specific_label(config: dict[str, Any], all_configs: list[dict[str, Any]]) -> str:
+    """``compare``'s label of the configuration with ``reg=m.s.``, e.g. ``neat reg=m.s. red-green-red``."""
+    return re.sub(r"reg=\S+", "reg=m.s.", describe_config(config, all_configs), count=1)
+
+
+def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any, dict[str, Any]],
+                          all_configs: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], str]:
+    """``compare_table``'s rows and markdown for the m.s. configurations (the chosen lambdas in
+    ``reg``): an overview line per m.s. configuration with the lambda per seed and the criterion,
+    then its tables; means over seeds of the chosen runs, with their 95% bootstrap interval."""
+    rows: list[dict[str, Any]] = []
+    overview, sections = [], []
+    for selection in selections:
+        config = selection["config"]
+        label = model_specific_label(config, all_configs)
+        lambdas = ", ".join(f"{c['seed']}: {c['reg']:g}" for c in selection["choices"])
+        found = {CRITERION: ("selection", Estimate.of([c["score"] for c in selection["choices"]])),
+                 **estimates([summaries[c["tag"]] for c in selection["choices"]])}
+        rows += csv_rows(label, config, found, reg="m.s. " + " ".join(f"{c['reg']:g}" for c in selection["choices"]))
+        overview.append([label, len(selection["choices"]), lambdas, *(_cell(found, k) for k in (CRITERION, *TRANSFER))])
+        sections.append(section(f"### {label}", f"lambda per seed: {lambdas}", found))
+    markdown = "\n".join([
+        "## Model-specific lambda (m.s. reg)", "",
+        f"Per configuration and seed, the lambda of the sweep maximising {CRITERION} (the top individual's "
+        "current performance plus its retention of the first task, at the end of the second task; ties: "
+        "the smaller lambda), from summary.json. Mean over seeds [95% bootstrap interval] of the chosen runs.", "",
+        *table(["configuration", "n seeds", "lambda per seed", CRITERION, *TRANSFER], overview), "",
+        *sections]).rstrip("\n")
+    return rows, markdown
 
 
 def write_csv(rows: list[dict[str, Any]], path: Path) -> Path:

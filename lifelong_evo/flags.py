@@ -17,6 +17,7 @@ from envs import ConfigError
 from .config import PRESETS, RunConfig, load_toml, resolve
 from .errors import UserError
 from .options import field_docs, flag, parse_value, plain, schema, show
+from .schedule import NAMED_SCHEDULES
 
 NESTED = {"env": "--env", "algo_options": "--option"}
 """The RunConfig tables set key by key, and the repeatable flag of each."""
@@ -32,10 +33,30 @@ def _typed(kind):
     return parse
 
 
+def _typed_list(name: str, kind):
+    """An argparse ``type`` for a sweep's flag: comma-separated values, each parsed as the run's
+    flag parses its one value, as a list. Schedules are separated by ``;`` (a custom schedule has
+    commas of its own), named ones also by commas."""
+    parse = _typed(kind)
+
+    def parse_list(text: str) -> list:
+        if name == "schedule":
+            items = []
+            for part in (p.strip() for p in text.split(";")):
+                pieces = [p.strip() for p in part.split(",")]
+                items += pieces if all(p in NAMED_SCHEDULES for p in pieces) else [part]
+        else:
+            items = [p.strip() for p in text.split(",")]
+        if any(not item for item in items):
+            raise argparse.ArgumentTypeError(f"{text!r} has an empty value: write e.g. --seed 1,2,3")
+        return [parse(item) for item in items]
+    return parse_list
+
+
 def add_run_options(parser: argparse.ArgumentParser, axes: bool = False) -> None:
     """One flag per RunConfig field, ``--env``, ``--option``, ``--preset`` and ``--config``.
-    ``axes``: the sweep's flags, which take comma-separated lists, so their values stay text
-    (split and typed by the sweep) and ``--preset`` defaults to the config file's."""
+    ``axes``: the sweep's flags, where a value flag takes a comma-separated list (``_typed_list``)
+    and ``--preset`` defaults to the config file's."""
     defaults = RunConfig()
     kinds = schema(RunConfig)
     docs = field_docs(RunConfig)
@@ -50,7 +71,8 @@ def add_run_options(parser: argparse.ArgumentParser, axes: bool = False) -> None
             parser.add_argument(f"--no-{f.name.replace('_', '-')}", dest=f.name, action="store_const", const=False,
                                 help=f"the opposite of {flag(f.name)}")
         else:
-            parser.add_argument(flag(f.name), dest=f.name, type=None if axes else _typed(kinds[f.name]), default=None,
+            parse = _typed_list(f.name, kinds[f.name]) if axes else _typed(kinds[f.name])
+            parser.add_argument(flag(f.name), dest=f.name, type=parse, default=None,
                                 help=f"{doc} (default: {default})" + ("; comma-separated values make an axis"
                                                                       if axes else ""))
     parser.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",

@@ -21,11 +21,9 @@ Running the same command again skips finished trials and resumes unfinished ones
 checkpoints (``--overwrite`` restarts every trial). A failed trial is recorded and the others go
 on; Ctrl-C cancels the running trials (their checkpoints are kept) and exits with 130.
 
-Model-specific lambda ("m.s. reg"): for each configuration without lambda and each seed, the lambda
-maximising ``C_top(phase 1) + R_top(task of phase 0 at the end of phase 1)`` from ``summary.json``
-(the top individual's current performance plus its retention of the first task at the end of the
-second task: the controller one would deploy, good at both; ties go to the smaller lambda),
-reported as its own row with the chosen lambda per seed.
+The comparison adds the model-specific lambda ("m.s. reg", ``lifelong_evo.compare``) where the
+grid varies lambda: per configuration without lambda and seed, the lambda whose top individual is
+best at the second task and keeps the first (``model_specific_lambda.md``/``.json``).
 
 Ray: by default a local Ray with one CPU per core; each trial reserves ``--threads`` times ``--eval-threads``
 CPUs (1 unless told otherwise) and ``--gpus-per-trial`` GPUs (runs then use ``--device cuda``). ``--address
@@ -46,7 +44,6 @@ dump) in ``ray.log`` in the sweep directory, its process logs in its session fol
 from __future__ import annotations
 
 import argparse
-import ast
 import contextlib
 import csv
 import hashlib
@@ -54,7 +51,6 @@ import io
 import itertools
 import json
 import logging
-import math
 import os
 import re
 import socket
@@ -68,19 +64,18 @@ from envs import ConfigError
 
 from . import loop
 from .checkpoint import atomic_write_bytes
+from .compare import CRITERION, compare_table, model_specific_label, model_specific_report, select_model_specific, write_csv
 from .config import PRESETS, RunConfig, load_toml, resolve
 from .errors import UserError
-from .flags import add_run_options
+from .flags import NESTED, add_run_options
 from .options import flag, parse_value, plain, schema
 from .report import duration
 from .rerun_recorder import RerunRecorder
-from .rundir import RunDir, RunDirError, configuration_of, describe_config, read_json, write_json
+from .rundir import RunDir, RunDirError, load_run, read_json, write_json
 
-RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in ("env", "algo_options")]
-"""Run options with a flag of their own (``--no-record`` for ``record``)."""
+RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in NESTED]
+"""Run options with a flag of their own."""
 _TYPES = schema(RunConfig)
-_NESTED = {"env": "env", "algo_options": "option"}
-"""Nested tables of RunConfig and the repeatable flag that sets their keys."""
 _LABELS = {"reg": "reg", "seed": "seed", "population": "pop", "generations": "gen", "evals": "evals",
            "retention_every": "ret", "checkpoint_every": "ckpt", "threads": "threads", "eval_threads": "evalthreads",
            "episodes_every": "ep"}
@@ -130,26 +125,11 @@ class Grid:
 
 
 def _coerce(key: str, value: Any, where: str) -> Any:
-    """A value of run option ``key`` from text (command line) or TOML, typed like RunConfig's field."""
+    """A sweep file's value of run option ``key``, typed as the run's flag types it."""
     try:
         return parse_value(_TYPES[key], value, flag(key))
     except ConfigError as error:
         raise UserError(f"{error} ({where})") from None
-
-
-def _split_flag(key: str, text: str) -> list[Any]:
-    if key == "schedule":
-        from .schedule import NAMED_SCHEDULES
-
-        items = []
-        for part in (p.strip() for p in text.split(";")):
-            pieces = [p.strip() for p in part.split(",")]
-            items += pieces if all(p in NAMED_SCHEDULES for p in pieces) else [part]
-    else:
-        items = [p.strip() for p in text.split(",")]
-    if any(not item for item in items):
-        raise UserError(f"--{key.replace('_', '-')} {text!r} has an empty value: write e.g. --seed 1,2,3")
-    return [_coerce(key, item, "on the command line") for item in items]
 
 
 def _split_assignment(item: str, what: str) -> tuple[str, list[str]]:
@@ -170,7 +150,7 @@ def _split_assignment(item: str, what: str) -> tuple[str, list[str]]:
 def _file_layer(path: str) -> tuple[dict[str, list[Any]], dict[str, Any], str | None, str | None]:
     """A sweep TOML: run options (fixed), a [grid] table of lists (axes), and preset/name."""
     values = load_toml(path)
-    allowed = set(RUN_FIELDS) | set(_NESTED) | {"grid", "preset", "name"}
+    allowed = set(RUN_FIELDS) | set(NESTED) | {"grid", "preset", "name"}
     unknown = sorted(set(values) - allowed)
     if unknown:
         raise UserError(f"unknown key(s) {unknown} in {path}: use run options, [env], [algo_options], "
@@ -199,7 +179,7 @@ def _file_layer(path: str) -> tuple[dict[str, list[Any]], dict[str, Any], str | 
             if not isinstance(value, dict):
                 raise UserError(f"grid in {path} must be a table: write [grid] with lists, e.g. seed = [1, 2]")
             for gkey, gvalue in value.items():
-                if gkey in _NESTED and isinstance(gvalue, dict):
+                if gkey in NESTED and isinstance(gvalue, dict):
                     for sub, subvalue in gvalue.items():
                         put(f"{gkey}.{sub}", subvalue, True)
                 elif gkey in RUN_FIELDS:
@@ -207,7 +187,7 @@ def _file_layer(path: str) -> tuple[dict[str, list[Any]], dict[str, Any], str | 
                 else:
                     raise UserError(f"unknown [grid] key {gkey!r} in {path}: use run options, "
                                    "[grid.env] or [grid.algo_options]")
-        elif key in _NESTED:
+        elif key in NESTED:
             if not isinstance(value, dict):
                 raise UserError(f"{key} in {path} must be a table: write [{key}]")
             for sub, subvalue in value.items():
@@ -235,12 +215,12 @@ def build_grid(args: argparse.Namespace) -> Grid:
             fixed[key] = values[0]
 
     for key in RUN_FIELDS:
-        value = getattr(args, key, None)
+        value = getattr(args, key, None)  # a list of typed values (flags.add_run_options), a boolean flag's value
         if value is not None:
-            put(key, _split_flag(key, value) if isinstance(value, str) else [value])
-    for nested, flag in _NESTED.items():
-        for item in getattr(args, flag):
-            sub, values = _split_assignment(item, f"--{flag}")
+            put(key, value if isinstance(value, list) else [value])
+    for nested, setter in NESTED.items():
+        for item in getattr(args, setter[2:]):
+            sub, values = _split_assignment(item, setter)
             put(f"{nested}.{sub}", values)
     preset = args.preset or preset or "paper"
     if preset not in PRESETS:
@@ -386,132 +366,26 @@ def write_sweep_json(sweep_dir: Path, grid: Grid, ray_settings: dict[str, Any]) 
                    for t in grid.trials]})
 
 
-# ------------------------------------------------------------------------------- model-specific lambda
-
-def selection_score(summary: dict[str, Any]) -> float | None:
-    """``C_top(phase 1) + R_top(task of phase 0 at the end of phase 1)``; None before phase 1 ended."""
-    current = summary.get("current_top") or []
-    phases = summary.get("phases") or []
-    if len(current) < 2 or len(phases) < 2:
-        return None
-    rows = [r for r in summary.get("forgetting", []) if r["at_end_of"] == 1 and r["task"] == phases[0]]
-    if not rows or current[1] is None or rows[0]["R_top"] is None:
-        return None
-    return float(current[1]) + float(rows[0]["R_top"])
-
-
-def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]) -> list[dict[str, Any]]:
-    """The model-specific lambda: ``runs`` are (config.json dict, summary.json dict, tag) triples;
-    for each configuration without lambda that was run with several lambdas, and each of its seeds,
-    the run whose lambda maximises ``selection_score`` (ties: the smaller lambda).
-
-    Returns one dict per such configuration: ``config`` (the config of its first chosen run) and
-    ``choices``, one per seed in ascending order: ``seed``, ``reg``, ``score``, ``tag``."""
-    groups: dict[str, dict[str, Any]] = {}
-    for config, summary, tag in runs:
-        rest = {k: v for k, v in configuration_of(config).items() if k != "reg"}
-        group = groups.setdefault(json.dumps(rest, sort_keys=True, default=str),
-                                  {"regs": set(), "by_seed": {}, "configs": {}})
-        group["regs"].add(float(config["reg"]))
-        group["configs"][tag] = config
-        score = selection_score(summary)
-        if score is not None and math.isfinite(score):
-            group["by_seed"].setdefault(config["seed"], []).append((score, float(config["reg"]), tag))
-    result = []
-    for group in groups.values():
-        if len(group["regs"]) < 2 or not group["by_seed"]:
-            continue
-        choices = []
-        for seed in sorted(group["by_seed"]):
-            score, reg, tag = max(group["by_seed"][seed], key=lambda c: (c[0], -c[1]))
-            choices.append({"seed": seed, "reg": reg, "score": score, "tag": tag})
-        result.append({"config": group["configs"][choices[0]["tag"]], "choices": choices})
-    return result
-
-
-CRITERION = "C_top(phase 1) + R_top(task of phase 0 at end of phase 1)"
-
-
-def model_specific_label(config: dict[str, Any], all_configs: list[dict[str, Any]]) -> str:
-    """``compare``'s label of the configuration with ``reg=m.s.``, e.g. ``neat reg=m.s. red-green-red``."""
-    return re.sub(r"reg=\S+", "reg=m.s.", describe_config(config, all_configs), count=1)
-
-
-def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any, dict[str, Any]],
-                          all_configs: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], str]:
-    """``compare``-style rows (one per m.s. configuration and metric, the chosen lambdas in ``reg``)
-    and markdown: an overview line per m.s. configuration with the lambda per seed, then its C per
-    phase and R/F table; means over seeds with their 95% bootstrap interval (``compare``'s)."""
-    from .compare import bootstrap_ci, run_metrics
-
-    def fmt(values: list[float]) -> str:
-        mean, low, high = bootstrap_ci(values)
-        if math.isnan(mean):
-            return "-"
-        return f"{mean:.2f}" if len(values) == 1 else f"{mean:.2f} [{low:.2f}, {high:.2f}]"
-
-    rows: list[dict[str, Any]] = []
-    transfer = ("ACC_pop", "BWT_pop", "FWT_pop", "ACC_top", "BWT_top", "FWT_top")
-    overview = ["| configuration | n seeds | lambda per seed | " + CRITERION + " | " + " | ".join(transfer) + " |",
-                "|" + "---|" * (4 + len(transfer))]
-    sections = []
-    for selection in selections:
-        config = selection["config"]
-        label = model_specific_label(config, all_configs)
-        lambdas = ", ".join(f"{c['seed']}: {c['reg']:g}" for c in selection["choices"])
-        per_metric: dict[str, list[float]] = {CRITERION: [c["score"] for c in selection["choices"]]}
-        for choice in selection["choices"]:
-            for _, name, value in run_metrics(summaries[choice["tag"]]):
-                if value is not None and not (isinstance(value, float) and math.isnan(value)):
-                    per_metric.setdefault(name, []).append(value)
-        for name, values in per_metric.items():
-            mean, low, high = bootstrap_ci(values)
-            rows.append({"configuration": label, "algo": config.get("algo"),
-                         "reg": "m.s. " + " ".join(f"{c['reg']:g}" for c in selection["choices"]),
-                         "schedule": config.get("schedule"), "metric": name, "n": len(values),
-                         "mean": mean, "ci_low": low, "ci_high": high, "values": values})
-        overview.append(f"| {label} | {len(selection['choices'])} | {lambdas} | {fmt(per_metric[CRITERION])} | "
-                        + " | ".join(fmt(per_metric.get(k, [])) for k in transfer) + " |")
-        lines = [f"### {label}", "", f"lambda per seed: {lambdas}", "", "| phase | C (current) |", "|---|---|"]
-        lines += [f"| {name[2:]} | {fmt(values)} |" for name, values in per_metric.items()
-                  if name.startswith("C phase")]
-        wheres = [name[len("R_pop "):] for name in per_metric if name.startswith("R_pop ")]
-        if wheres:
-            lines += ["", "| task at end of phase | R_pop | F_pop | R_top | F_top |", "|---|---|---|---|---|"]
-            lines += [f"| {where} | " + " | ".join(fmt(per_metric.get(f"{m} {where}", []))
-                                                 for m in ("R_pop", "F_pop", "R_top", "F_top")) + " |"
-                      for where in wheres]
-        sections.append("\n".join(lines))
-    markdown = "\n".join([
-        "## Model-specific lambda (m.s. reg)", "",
-        f"Per configuration and seed, the lambda of the sweep maximising {CRITERION} (the top individual's "
-        "current performance plus its retention of the first task, at the end of the second task; ties: "
-        "the smaller lambda), "
-        "from summary.json. Mean over seeds [95% bootstrap interval] of the chosen runs.", "",
-        *overview, "", "\n\n".join(sections)])
-    return rows, markdown
-
+# ---------------------------------------------------------------------------------------- comparison
 
 def aggregate(sweep_dir: Path, grid: Grid) -> str:
     """``compare`` over the finished trials plus the m.s. reg rows: written to comparison.md and
     comparison.csv (the m.s. part also to model_specific_lambda.md/.json); returns the markdown."""
-    from .compare import compare_table, write_csv
-
     done = [t for t in grid.trials if t.status == "done"]
     if not done:
         return "no finished trial: nothing to compare"
     rows, markdown = compare_table([sweep_dir / t.name for t in done])
-    configs = {t.name: read_json(sweep_dir / t.name / "config.json") for t in done}
-    summaries = {t.name: read_json(sweep_dir / t.name / "summary.json") for t in done}
-    selections = select_model_specific([(configs[t.name], summaries[t.name], t.name) for t in done])
+    runs = [load_run(sweep_dir / t.name, with_metrics=False) for t in done]
+    configs = [run.config for run in runs]
+    selections = select_model_specific([(run.config, run.summary, run.path.name) for run in runs])
     if selections:
-        ms_rows, ms_markdown = model_specific_report(selections, summaries, list(configs.values()))
+        ms_rows, ms_markdown = model_specific_report(selections, {run.path.name: run.summary for run in runs}, configs)
         rows += ms_rows
         markdown += "\n" + ms_markdown
         (sweep_dir / "model_specific_lambda.md").write_text(ms_markdown + "\n")
         write_json(sweep_dir / "model_specific_lambda.json",
-                   [{"configuration": model_specific_label(s["config"], list(configs.values())),
-                     "criterion": CRITERION, "choices": s["choices"]} for s in selections])
+                   [{"configuration": model_specific_label(s["config"], configs), "criterion": CRITERION,
+                     "choices": s["choices"]} for s in selections])
     atomic_write_bytes(sweep_dir / "comparison.md", (markdown + "\n").encode())
     write_csv(rows, sweep_dir / "comparison.csv")
     return markdown

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from lifelong_evo.cli import main
-from lifelong_evo.sweep import model_specific_report, select_model_specific, selection_score
+from lifelong_evo.compare import model_specific_report, select_model_specific, selection_score
 
 ray = pytest.importorskip("ray")
 
