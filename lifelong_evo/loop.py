@@ -127,7 +127,7 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
                            {name: kept.pop for name, kept in record.retention.items()}, task_end=last)
             # after the task end: a run resumed from this checkpoint has the task's reference
             if last or state.generation % config.checkpoint_every == 0:
-                _save_checkpoint(config, run_dir, optimizer, generator, state)
+                run_dir.save_checkpoint(state.generation, _checkpoint_payload(config, optimizer, generator, state))
                 run_dir.write_summary(summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s,
                                                 centre is not None))
     finally:
@@ -151,8 +151,8 @@ def _generations(phases: list[Phase], start: int) -> Iterator[tuple[int, int, in
 
 def _finish_phase(run_dir: RunDir, optimizer, state: LoopState, phase_index: int, name: str,
                   scores: dict[str, Retention], exported: dict[str, Any]) -> None:
-    """Task end: record C and the retention on every task, export the top controller, and let
-    the optimiser take its regularisation reference."""
+    """Task end: record C and the retention on every task, write the top controller, and let
+    the optimiser take its regulariser's reference."""
     end = {"task": name, "C": scores[name].pop,
            "R_pop": {n: s.pop for n, s in scores.items()}, "R_top": {n: s.top for n, s in scores.items()}}
     if optimizer.centre_index is not None:
@@ -175,10 +175,6 @@ def _checkpoint_payload(config, optimizer, generator, state) -> dict[str, Any]:
     return {"config": config.to_dict(), "optimizer": optimizer.state_dict(), "generator": generator.get_state(),
             "loop": {"generation": state.generation, "phase_ends": state.phase_ends, "initial": state.initial,
                      "wall_time_s": state.wall_time_s}}
-
-
-def _save_checkpoint(config, run_dir, optimizer, generator, state) -> None:
-    run_dir.save_checkpoint(state.generation, _checkpoint_payload(config, optimizer, generator, state))
 
 
 def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopState:

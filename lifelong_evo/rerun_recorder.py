@@ -48,8 +48,8 @@ import numpy as np
 from envs import COLOR_RGB, color_rgb, task_rgb
 
 from .episodes import Episode
-from .metrics import GenerationRecord
 from .errors import UserError
+from .metrics import GenerationRecord
 from .recording import Recorder
 
 APPLICATION_ID = "lifelong_evo"
@@ -192,7 +192,7 @@ class RerunRecorder(Recorder):
     def _scalar(self, generation: int, entity: str, value, color, name: str, width: float = 2.0) -> None:
         """Buffer one curve point; ``flush_curves`` sends the buffer column-wise (a chunk per curve
         and flush instead of one per point keeps a long run's file small)."""
-        if value is None or value == "" or (isinstance(value, float) and np.isnan(value)):
+        if value is None or math.isnan(value):  # not measured in this generation
             return
         self._style(entity, color, name, width)
         self._pending.setdefault(entity, []).append((generation, float(value)))

@@ -8,9 +8,10 @@
 ``runs/<name>/checkpoints/``  the last two checkpoints (see ``lifelong_evo.checkpoint``)
 ``runs/<name>/controllers/``  exported controllers (JSON: neat-python genomes or MLP parameters)
 
-``RunDir`` names these files and writes them while a run goes; ``Run`` (``load_run``,
-``find_run_dirs``, ``group_runs``) is what ``plot``, ``compare`` and ``sweep`` read back. Which
-runs are repetitions of one configuration is ``RunConfig.configuration_settings``.
+``RunDir`` names these files and writes them while a run goes; ``MetricsLayout`` spells every
+metrics.csv column and flattens a ``metrics.GenerationRecord`` into a row; ``Run`` (``load_runs``,
+``group_runs``) is what ``plot``, ``compare`` and ``sweep`` read back. Which runs are repetitions
+of one configuration is ``RunConfig.configuration_settings``.
 """
 from __future__ import annotations
 
