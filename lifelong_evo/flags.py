@@ -80,8 +80,8 @@ def add_run_options(parser: argparse.ArgumentParser, axes: bool = False) -> None
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                         help="optimiser option, e.g. --option sigma=0.05 (repeatable; listed below)")
     parser.add_argument("--preset", default=None if axes else "paper", choices=sorted(PRESETS),
-                        help="paper (the default) or smoke (a run of seconds)"
-                             + ("; default: the config file's preset, else paper" if axes else ""))
+                        help="paper or smoke (a run of seconds); default: "
+                             + ("the config file's preset, else paper" if axes else "paper"))
     parser.add_argument("--config", default=None, metavar="FILE", help="TOML file; flags override it")
 
 
