@@ -13,6 +13,9 @@ the seed, the speed settings and the output settings of ``RunConfig`` are one) a
 ``comparison.csv``   the same values, one line per configuration and metric (with the raw values)
 ``comparison-current[-<schedule>].png``  each configuration's current-performance curve (mean
                      over seeds, min-max band) on a shared drift schedule
+``comparison-diagnostics[-<schedule>].png``  the same for each diagnostic the optimisers log
+                     (``Optimizer.diagnostics``: NEAT's genetic distance to the reference, its
+                     spread and the fraction of disabled connections), one panel each
 
 The markdown is printed too. ``compare_table(paths)`` returns ``(rows, markdown)`` for reuse.
 
@@ -35,6 +38,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from algorithms import REGISTRY
 
 from .plots import CONFIG_COLORS, band, draw_drifts, save, shade_phases, stack
 from .rundir import Run, configuration_of, describe_config, group_runs, is_run_dir, load_runs
@@ -276,8 +281,33 @@ def write_csv(rows: list[dict[str, Any]], path: Path) -> Path:
     return path
 
 
+def _overlay(ax, groups: list[list[Run]], configs: list[dict[str, Any]], column: str) -> None:
+    """Each configuration's ``column`` (mean over seeds, min-max band) over the schedule's phases."""
+    for k, group in enumerate(groups):
+        if column in group[0].metrics[0]:
+            generations, values = stack(group, column)
+            label = f"{describe_config(group[0].config, configs)} (n={len(group)})"
+            band(ax, generations, values, CONFIG_COLORS[k % len(CONFIG_COLORS)], "-", label)
+    draw_drifts(ax, groups[0][0])
+    shade_phases(ax, groups[0][0])
+    ax.set_xlabel("generation")
+    ax.margins(y=0.08)
+    ax.grid(alpha=0.25)
+    ax.legend(fontsize=8, loc="best")
+
+
+def _diagnostics(groups: list[list[Run]]) -> list[str]:
+    """The optimisers' per-generation diagnostics (``Optimizer.diagnostics``) these runs logged."""
+    names: dict[str, None] = {}
+    for group in groups:
+        optimizer = REGISTRY.get(str(group[0].config.get("algo")))
+        names.update((name, None) for name in getattr(optimizer, "diagnostics", ()) if name in group[0].metrics[0])
+    return list(names)
+
+
 def overlay_figures(paths, out: Path) -> list[Path]:
-    """Per schedule: every configuration's current performance (mean over seeds, min-max band)."""
+    """Per schedule: every configuration's current performance, and the optimisers' diagnostics
+    where they logged any, as mean over seeds with a min-max band."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -292,23 +322,24 @@ def overlay_figures(paths, out: Path) -> list[Path]:
     configs = [g[0].config for groups in by_schedule.values() for g in groups]
     written = []
     for index, groups in enumerate(by_schedule.values()):
-        fig, ax = plt.subplots(figsize=(10, 5), constrained_layout=True)
-        for k, group in enumerate(groups):
-            label = f"{describe_config(group[0].config, configs)} (n={len(group)})"
-            generations, values = stack(group, "best")
-            band(ax, generations, values, CONFIG_COLORS[k % len(CONFIG_COLORS)], "-", label)
-        draw_drifts(ax, groups[0][0])
-        shade_phases(ax, groups[0][0])
         schedule = str(groups[0][0].config.get("schedule", ""))
+        suffix = "" if len(by_schedule) == 1 else f"-{index}-" + re.sub(r"[^A-Za-z0-9]+", "-", schedule).strip("-")
+        fig, ax = plt.subplots(figsize=(10, 5), constrained_layout=True)
+        _overlay(ax, groups, configs, "best")
         ax.set_title(f"Current performance C (best of the population on the current task), schedule {schedule}\n"
                      "mean over seeds, band: min-max; coloured strip: the current task", fontsize=10)
-        ax.set_xlabel("generation")
         ax.set_ylabel("fitness (reward per episode)")
-        ax.margins(y=0.08)
-        ax.grid(alpha=0.25)
-        ax.legend(fontsize=8, loc="best")
-        suffix = "" if len(by_schedule) == 1 else f"-{index}-" + re.sub(r"[^A-Za-z0-9]+", "-", schedule).strip("-")
         written.append(save(fig, out / f"comparison-current{suffix}.png"))
+        names = _diagnostics(groups)
+        if names:
+            fig, axes = plt.subplots(len(names), 1, figsize=(10, 3.2 * len(names)), sharex=True,
+                                     constrained_layout=True, squeeze=False)
+            for ax, name in zip(axes[:, 0], names):
+                _overlay(ax, groups, configs, name)
+                ax.set_ylabel(name)
+            axes[0, 0].set_title(f"Optimiser diagnostics per generation, schedule {schedule}\n"
+                                 "mean over seeds, band: min-max; coloured strip: the current task", fontsize=10)
+            written.append(save(fig, out / f"comparison-diagnostics{suffix}.png"))
     return written
 
 
