@@ -121,7 +121,18 @@ class Grid:
     fixed: dict[str, Any]
     preset: str
     name: str | None = None
+    by_algo: dict[str, tuple[dict[str, list[Any]], dict[str, Any]]] = field(default_factory=dict)
+    """Per algorithm: axes and fixed values for its trials only (a sweep file's ``[grid.<algo>]``),
+    so that algorithms whose options or lambdas differ share one grid."""
     trials: list[Trial] = field(default_factory=list)
+
+    @property
+    def columns(self) -> list[str]:
+        """Every axis, shared or one algorithm's, in trial-name order."""
+        keys = dict.fromkeys(self.axes)
+        for axes, _ in self.by_algo.values():
+            keys.update(dict.fromkeys(axes))
+        return sorted(keys, key=_axis_rank)
 
 
 def _coerce(key: str, value: Any, where: str) -> Any:
@@ -147,8 +158,12 @@ def _split_assignment(item: str, what: str) -> tuple[str, list[str]]:
     return key.strip(), [*pieces, text[start:]]
 
 
-def _file_layer(path: str) -> tuple[dict[str, list[Any]], dict[str, Any], str | None, str | None]:
-    """A sweep TOML: run options (fixed), a [grid] table of lists (axes), and preset/name."""
+def _file_layer(path: str):
+    """A sweep TOML: run options (fixed), a [grid] table of lists (axes) with optional
+    ``[grid.<algo>]`` tables (axes and fixed values for that algorithm's trials only), and
+    preset/name. Returns (axes, fixed, by_algo, preset, name)."""
+    from algorithms import REGISTRY
+
     values = load_toml(path)
     allowed = set(RUN_FIELDS) | set(NESTED) | {"grid", "preset", "name"}
     unknown = sorted(set(values) - allowed)
@@ -157,8 +172,9 @@ def _file_layer(path: str) -> tuple[dict[str, list[Any]], dict[str, Any], str | 
                        "[grid], preset and name")
     axes: dict[str, list[Any]] = {}
     fixed: dict[str, Any] = {}
+    by_algo: dict[str, tuple[dict[str, list[Any]], dict[str, Any]]] = {}
 
-    def put(key: str, value: Any, in_grid: bool) -> None:
+    def put(key: str, value: Any, in_grid: bool, axes: dict, fixed: dict) -> None:
         name = key.split(".")[-1]
         if in_grid:
             listed = value if isinstance(value, list) else [value]
@@ -172,41 +188,64 @@ def _file_layer(path: str) -> tuple[dict[str, list[Any]], dict[str, Any], str | 
         else:
             fixed[key] = _coerce(name, value, f"in {path}") if "." not in key else value
 
+    def grid_table(table: dict, axes: dict, fixed: dict, algo: str | None) -> None:
+        where = f"[grid.{algo}]" if algo else "[grid]"
+        for gkey, gvalue in table.items():
+            if gkey in NESTED and isinstance(gvalue, dict):
+                for sub, subvalue in gvalue.items():
+                    put(f"{gkey}.{sub}", subvalue, True, axes, fixed)
+            elif gkey in RUN_FIELDS and not (algo and gkey == "algo"):
+                put(gkey, gvalue, True, axes, fixed)
+            elif algo is None and gkey in REGISTRY and isinstance(gvalue, dict):
+                by_algo[gkey] = ({}, {})
+                grid_table(gvalue, *by_algo[gkey], gkey)
+            else:
+                raise UserError(f"unknown {where} key {gkey!r} in {path}: use run options, "
+                                f"{where[:-1]}.env] or {where[:-1]}.algo_options]"
+                                + ("" if algo else ", or [grid.<algo>] for one algorithm's trials"))
+
     for key, value in values.items():
         if key in ("preset", "name"):
             continue
         if key == "grid":
             if not isinstance(value, dict):
                 raise UserError(f"grid in {path} must be a table: write [grid] with lists, e.g. seed = [1, 2]")
-            for gkey, gvalue in value.items():
-                if gkey in NESTED and isinstance(gvalue, dict):
-                    for sub, subvalue in gvalue.items():
-                        put(f"{gkey}.{sub}", subvalue, True)
-                elif gkey in RUN_FIELDS:
-                    put(gkey, gvalue, True)
-                else:
-                    raise UserError(f"unknown [grid] key {gkey!r} in {path}: use run options, "
-                                   "[grid.env] or [grid.algo_options]")
+            grid_table(value, axes, fixed, None)
         elif key in NESTED:
             if not isinstance(value, dict):
                 raise UserError(f"{key} in {path} must be a table: write [{key}]")
             for sub, subvalue in value.items():
-                put(f"{key}.{sub}", subvalue, False)
+                put(f"{key}.{sub}", subvalue, False, axes, fixed)
         else:
-            put(key, value, False)
-    return axes, fixed, values.get("preset"), values.get("name")
+            put(key, value, False, axes, fixed)
+    return axes, fixed, by_algo, values.get("preset"), values.get("name")
+
+
+_FIRST_AXES = ["algo", "schedule", "reg"]  # as in RunConfig.default_name
+
+
+def _axis_rank(key: str) -> tuple[int, str]:
+    """Trial names list the axes in this order: algo, schedule, reg, the other run options,
+    environment and optimiser options, then the seed."""
+    if key in _FIRST_AXES:
+        return (0, f"{_FIRST_AXES.index(key)}")
+    if key == "seed":
+        return (4, key)
+    if key in RUN_FIELDS:
+        return (1, f"{RUN_FIELDS.index(key):03d}")
+    return (2, key)
 
 
 def build_grid(args: argparse.Namespace) -> Grid:
     """Axes and fixed values from the sweep file and the flags (flags win, key by key), and the
     trials: every combination, each resolved and validated like a ``run`` (preset < file < flags)."""
-    axes, fixed, preset, name = _file_layer(args.config) if args.config else ({}, {}, None, None)
+    axes, fixed, by_algo, preset, name = _file_layer(args.config) if args.config else ({}, {}, {}, None, None)
     if args.config and name is None:
         name = Path(args.config).stem
 
     def put(key: str, values: list[Any]) -> None:
-        axes.pop(key, None)
-        fixed.pop(key, None)
+        for table in (axes, fixed, *(t for tables in by_algo.values() for t in tables)):  # a flag wins everywhere
+            table.pop(key, None)
         if len(values) != len(set(map(repr, values))):
             raise UserError(f"{key} lists a value twice ({values}): give each value once")
         if len(values) > 1:
@@ -233,17 +272,25 @@ def build_grid(args: argparse.Namespace) -> Grid:
             raise UserError("--gpus-per-trial runs trials on cuda: drop --device or set it to cuda")
         if "device" not in axes:
             fixed["device"] = "cuda"
-    first = ["algo", "schedule", "reg"]  # as in RunConfig.default_name
-    order = [*first, *(k for k in RUN_FIELDS if k not in first and k != "seed"),
-             *sorted(k for k in axes if "." in k), "seed"]
-    axes = {k: axes[k] for k in order if k in axes}
-    grid = Grid(axes, fixed, preset, args.name or name)
+    algos = axes.get("algo", [fixed.get("algo", RunConfig().algo)])
+    for algo, (algo_axes, _) in by_algo.items():
+        if algo not in algos:
+            raise UserError(f"[grid.{algo}] is for {algo}'s trials, but no trial runs {algo}: add it to algo")
+        shared = sorted(set(algo_axes) & set(axes))
+        if shared:
+            raise UserError(f"{', '.join(shared)} is an axis of every trial and of [grid.{algo}] too: give it in one")
+    axes = {k: axes[k] for k in sorted(axes, key=_axis_rank)}
+    grid = Grid(axes, fixed, preset, args.name or name, by_algo)
     for combo in itertools.product(*axes.values()):
-        values = dict(zip(axes, combo))
-        # a cluster's machines, not this one, must have the device and compiler its trials need
-        config = _resolve(preset, {**fixed, **values}, values, machine=args.address is None)
-        values = {key: _typed_value(config, key) for key in values}
-        grid.trials.append(Trial(trial_name(values, config), values, config))
+        common = dict(zip(axes, combo))
+        algo_axes, algo_fixed = by_algo.get(common.get("algo", fixed.get("algo", RunConfig().algo)), ({}, {}))
+        for algo_combo in itertools.product(*algo_axes.values()):
+            values = {**common, **dict(zip(algo_axes, algo_combo))}
+            values = {k: values[k] for k in sorted(values, key=_axis_rank)}
+            # a cluster's machines, not this one, must have the device and compiler its trials need
+            config = _resolve(preset, {**fixed, **algo_fixed, **values}, values, machine=args.address is None)
+            values = {key: _typed_value(config, key) for key in values}
+            grid.trials.append(Trial(trial_name(values, config), values, config))
     seen: dict[str, Trial] = {}
     for trial in grid.trials:
         if trial.name in seen:
@@ -352,16 +399,17 @@ def trial_state(path: Path, config: RunConfig) -> tuple[str, str]:
 def write_trials_csv(sweep_dir: Path, grid: Grid) -> None:
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(["trial", "status", "error", "wall_time_s", *grid.axes])
+    writer.writerow(["trial", "status", "error", "wall_time_s", *grid.columns])
     for t in grid.trials:
         wall = "" if t.wall_time_s is None else f"{t.wall_time_s:.1f}"
-        writer.writerow([t.name, t.status, t.error, wall, *(t.values[k] for k in grid.axes)])
+        writer.writerow([t.name, t.status, t.error, wall, *(t.values.get(k, "") for k in grid.columns)])
     atomic_write_bytes(sweep_dir / "trials.csv", buffer.getvalue().encode())
 
 
 def write_sweep_json(sweep_dir: Path, grid: Grid, ray_settings: dict[str, Any]) -> None:
     write_json(sweep_dir / "sweep.json", {
-        "name": grid.name, "preset": grid.preset, "grid": grid.axes, "fixed": grid.fixed, "ray": ray_settings,
+        "name": grid.name, "preset": grid.preset, "grid": grid.axes, "fixed": grid.fixed,
+        "by_algo": {algo: {"grid": a, "fixed": f} for algo, (a, f) in grid.by_algo.items()}, "ray": ray_settings,
         "trials": [{"trial": t.name, "path": t.name, "values": t.values, "config": t.config.to_dict()}
                    for t in grid.trials]})
 
@@ -538,7 +586,9 @@ def main(args: argparse.Namespace) -> int:
             to_run.append(trial)
             if state == "resume":
                 resuming.add(trial.name)
-    axes = ", ".join(f"{k} ({len(v)})" for k, v in grid.axes.items()) or "no axes"
+    axes = ", ".join([*(f"{k} ({len(v)})" for k, v in grid.axes.items()),
+                      *(f"{algo}: {k} ({len(v)})" for algo, (a, _) in grid.by_algo.items() for k, v in a.items())]) \
+        or "no axes"
     _print(f"sweep {grid.name}: {len(grid.trials)} trial(s) over {axes}, preset {grid.preset}; "
            f"{len(to_run)} to run -> {sweep_dir}")
     for trial in grid.trials:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from algorithms import REGISTRY
 from lifelong_evo.cli import main
 from lifelong_evo.config import load_toml, resolve
 
@@ -43,10 +44,20 @@ def test_sweep_files_list_their_trials(name, tmp_path, capsys):
     grid = load_toml(EXAMPLES / name)["grid"]
     assert main(["sweep", "--config", str(EXAMPLES / name), "--out", str(tmp_path), "--dry-run"]) == 0
     trials = [line for line in capsys.readouterr().out.splitlines() if line.startswith("would run")]
-    expected = 1
-    for values in grid.values():
-        expected *= len(values) if isinstance(values, list) else 1
-    assert len(trials) == expected and not any(tmp_path.iterdir())
+
+    def combinations(table: dict) -> int:  # lists are axes, nested option tables too; [grid.<algo>] apart
+        count = 1
+        for key, value in table.items():
+            if isinstance(value, list):
+                count *= len(value)
+            elif isinstance(value, dict) and key not in REGISTRY:
+                count *= combinations(value)
+        return count
+
+    shared = combinations({key: value for key, value in grid.items() if key != "algo"})
+    algos = grid.get("algo", [load_toml(EXAMPLES / name).get("algo", "neat")])
+    assert len(trials) == sum(shared * combinations(grid.get(algo, {})) for algo in algos)
+    assert not any(tmp_path.iterdir())
 
 
 def test_custom_optimizer_example(tmp_path):

@@ -10,8 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from lifelong_evo.cli import main
+from lifelong_evo.cli import build_parser, main
 from lifelong_evo.compare import model_specific_report, select_model_specific, selection_score
+from lifelong_evo.sweep import build_grid
 
 ray = pytest.importorskip("ray")
 
@@ -188,3 +189,35 @@ def test_model_specific_lambda_selection():
     c1 = next(row for row in rows if row["metric"] == "C_top phase 1 (green)")
     assert c1["values"] == [4.0, 6.0] and c1["reg"] == "m.s. 5 0" and c1["mean"] == 5.0
     assert next(row for row in rows if row["metric"] == "C phase 1 (green)")["values"] == [14.0, 16.0]
+
+
+def test_one_grid_for_algorithms_whose_options_differ(tmp_path, capsys):
+    """[grid.<algo>] gives axes and fixed values to one algorithm's trials only: NEAT's genetics
+    and lambdas next to an ES's sigma and lambdas, in one sweep."""
+    sweep_file = tmp_path / "families.toml"
+    sweep_file.write_text('preset = "smoke"\n[grid]\nalgo = ["neat", "openai-es", "sep-cmaes"]\nseed = [1, 2]\n'
+                          '[grid.neat]\nreg = [0, 11]\nalgo_options = { genetics = "2.0" }\n'
+                          '[grid.openai-es]\nreg = [0, 0.5]\nalgo_options = { sigma = [0.05, 0.1] }\n')
+    args = build_parser().parse_args(["sweep", "--config", str(sweep_file), "--out", str(tmp_path)])
+    grid = build_grid(args)
+    by_name = {t.name: t.config for t in grid.trials}
+    assert list(by_name) == ["neat-reg0-seed1", "neat-reg11-seed1", "neat-reg0-seed2", "neat-reg11-seed2",
+                             *(f"openai-es-reg{r}-sigma{s}-seed{seed}" for seed in (1, 2) for r in ("0", "0.5")
+                               for s in ("0.05", "0.1")),
+                             "sep-cmaes-seed1", "sep-cmaes-seed2"]
+    assert by_name["neat-reg11-seed2"].algo_options == {"genetics": "2.0"} and by_name["neat-reg11-seed2"].reg == 11
+    assert by_name["openai-es-reg0.5-sigma0.1-seed1"].algo_options == {"sigma": 0.1}
+    assert by_name["sep-cmaes-seed1"].algo_options == {} and by_name["sep-cmaes-seed1"].reg == 0
+    assert grid.columns == ["algo", "reg", "algo_options.sigma", "seed"]
+    # a flag wins over the file everywhere, the algorithms' own tables included
+    args = build_parser().parse_args(["sweep", "--config", str(sweep_file), "--reg", "1", "--algo", "neat,openai-es"])
+    assert sorted({t.config.reg for t in build_grid(args).trials}) == [1.0]
+    for text, message in (('[grid]\nalgo = ["neat"]\n[grid.openai-es]\nreg = [0, 1]\n', "no trial runs openai-es"),
+                          ('[grid]\nalgo = ["neat", "snes"]\nreg = [0, 1]\n[grid.neat]\nreg = [0, 11]\n',
+                           "reg is an axis of every trial and of [grid.neat] too"),
+                          ('[grid]\nalgo = ["neat", "snes"]\n[grid.neat]\nalgo = ["snes"]\n',
+                           "unknown [grid.neat] key 'algo'")):
+        sweep_file.write_text(text)
+        assert main(["sweep", "--config", str(sweep_file), "--out", str(tmp_path), "--dry-run"]) == 2
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1, err
