@@ -354,8 +354,7 @@ class NeatOptimizer(Optimizer):
             "activation": {"name": "neat_sigmoid", "slope": NEAT_SIGMOID_SLOPE},
             "unconnected_outputs": self.unconnected_outputs,
             "zero_outputs": [k for k in gc.output_keys if k not in computed],
-            "fitness": getattr(genome, "raw_fitness", None),
-            "selection_fitness": genome.fitness,
+            "genetics": self.genetics,
             "genome": {
                 "nodes": [{"key": int(k), "bias": n.bias, "response": n.response,
                            "activation": n.activation, "aggregation": n.aggregation}

@@ -99,8 +99,12 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
             scores[phase.name] = retention(raw, regularised, centre)
             top = int(regularised.argmax())
             periodic = bool(config.episodes_every) and generation % config.episodes_every == 0
-            # exported before tell, which replaces the asked population that export reads from
-            exported = optimizer.export(top) if last or periodic else None
+            # exported before tell, which replaces the asked population that export reads from; with
+            # this generation's scores, which the optimiser has not been told yet
+            exported = None
+            if last or periodic:
+                exported = {**optimizer.export(top), "generation": generation, "fitness": raw[top].item(),
+                            "selection_fitness": regularised[top].item()}
             with update_threads(config.threads, config.eval_threads):
                 report = optimizer.tell(raw, regularised)
 

@@ -74,6 +74,12 @@ def test_run_directory_contract(smoke_runs, name):
         ["task0-red-top.json", "task1-green-top.json", "task2-red-top.json"]
     exported = json.loads((run / "controllers/final-top.json").read_text())
     assert exported == json.loads((run / "controllers/task2-red-top.json").read_text())
+    # the scores of the generation it was exported in (an elite's fitness from an earlier one was kept before)
+    last = _rows(run / "metrics.csv")[-1]
+    assert exported["generation"] == int(last["generation"])
+    assert exported["fitness"] == float(last["top"]) and exported["selection_fitness"] == float(last["reg_best"])
+    if config["algo"] == "neat":
+        assert exported["genetics"] == config["algo_options"].get("genetics", "0.92")
 
 
 @pytest.mark.parametrize("name", SMOKE_RUNS)
