@@ -40,7 +40,7 @@ from neat.reporting import ReporterSet
 
 from . import neat_state
 from .base import GenerationReport, Optimizer, OptimizerOptions
-from .neat_genetics import Genetics
+from .neat_genetics import DEFAULT_GENETICS, Genetics
 from .neat_network import (
     NEAT_SIGMOID_SLOPE,
     CompiledPopulation,
@@ -72,7 +72,7 @@ class NeatOptions(OptimizerOptions):
     unconnected_outputs: UnconnectedOutputs = "zero"
     """Nodes without enabled inputs are dead (zero: neat-python 0.92, the paper's) or bias neurons
     (bias: neat-python 2.0); see ``algorithms.neat_network``."""
-    genetics: Genetics = "0.92"
+    genetics: Genetics = DEFAULT_GENETICS
     """The genetics the population evolves with: neat-python 0.92's (the paper's) or 2.0's; see
     ``algorithms.neat_genetics``."""
 
