@@ -102,9 +102,15 @@ class ESOptimizer(Optimizer):
     ``options``: the fields of the algorithm's ``Options`` (``ESOptions`` with its defaults;
     ``reference`` and ``importance``: see ``algorithms.regularizers``). The search distribution
     starts centred at the zero vector (all controller outputs 0.5).
+
+    ``diagnostics``: the mean and standard deviation over the asked controllers of the
+    regulariser's distance to the reference (``Regularizer.distances``; NaN before the first
+    ``end_task``), logged for every lambda, 0 included, so a grid over lambda can be read against
+    the spread of fitness it has to compete with.
     """
 
     Options: ClassVar[type[ESOptions]] = ESOptions
+    diagnostics: ClassVar[tuple[str, ...]] = ("distance_mean", "distance_std")
     even_population: ClassVar[bool] = False
     """Mirrored sampling needs an even number of samples."""
 
@@ -199,7 +205,10 @@ class ESOptimizer(Optimizer):
             raise ValueError("selection_fitness has non-finite values")
         sel = selection_fitness.detach().to(self.device, torch.float32)
         self.regularizer.observe(self._population, sel)
-        extra = self._update(sel[:self.n_samples])
+        distances = self.regularizer.distances(self._population)
+        extra = {"distance_mean": math.nan if distances is None else distances.mean().item(),
+                 "distance_std": math.nan if distances is None else distances.std(unbiased=False).item(),
+                 **self._update(sel[:self.n_samples])}
         self._pending = False
         self.generation += 1
         return GenerationReport(extra=extra)

@@ -137,6 +137,11 @@ class Regularizer:
     def __call__(self, fitness: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
         return regularised_fitness(fitness, params, self.reg, self.reference, self.importance)
 
+    def distances(self, params: torch.Tensor) -> torch.Tensor | None:
+        """``penalty`` of each row of ``params`` (the selection fitness loses ``reg`` times it),
+        also when ``reg == 0``; ``None`` before the first ``end_task``."""
+        return None if self.reference is None else penalty(params, self.reference, self.importance)
+
     @property
     def needs_sensitivity(self) -> bool:
         """Whether ``observe_gaussian`` is used (Gaussian ESs with ``importance="ewc"``)."""

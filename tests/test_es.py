@@ -1,5 +1,6 @@
 """Evolution strategies behind ask/tell, and the shared regulariser (synthetic objectives only)."""
 import io
+import math
 
 import pytest
 import torch
@@ -233,6 +234,31 @@ def test_regularisation_holds_the_centre_near_the_reference(name):
             generation(opt, TARGET_B)
         distances[reg] = float((opt.centre - ref).norm())
     assert distances[50.0] < 0.6 * distances[0.0], distances
+
+
+@pytest.mark.parametrize("name", ALGOS)
+@pytest.mark.parametrize("reg", [0.0, 3.0])
+def test_diagnostics_are_the_distance_to_the_reference(name, reg):
+    """Every generation reports the mean and spread of the regulariser's distance over the asked
+    controllers, with or without a penalty; before the first drift there is none."""
+    opt = make(name, reg=reg, importance="ewc")
+    policy = opt.ask()
+    fitness = output_fitness(policy)
+    report = opt.tell(fitness, opt.regularise(fitness))
+    assert set(opt.diagnostics) <= set(report.extra)
+    assert all(math.isnan(report.extra[key]) for key in opt.diagnostics)
+    for _ in range(3):
+        generation(opt)
+    opt.end_task()
+    policy = opt.ask()
+    params, fitness = policy.params.clone(), output_fitness(policy, TARGET_B)
+    selection = opt.regularise(fitness)
+    report = opt.tell(fitness, selection)
+    by_hand = torch.stack([(opt.regularizer.importance * (p - opt.regularizer.reference) ** 2).mean() for p in params])
+    assert report.extra["distance_mean"] == pytest.approx(by_hand.mean().item(), rel=1e-5)
+    assert report.extra["distance_std"] == pytest.approx(by_hand.std(unbiased=False).item(), rel=1e-4)
+    assert report.extra["distance_mean"] > 0
+    torch.testing.assert_close(fitness - selection, reg * by_hand, rtol=1e-4, atol=1e-7)
 
 
 @pytest.mark.parametrize("name", ["cmaes", "sep-cmaes"])

@@ -129,32 +129,34 @@ def test_compare_groups_configurations_and_matches_hand_computation(sweep, tmp_p
     assert len(written) == len(rows)
     assert float(written[0]["mean"]) == pytest.approx(rows[0]["mean"])
     assert (out / "comparison-current.png").read_bytes().startswith(PNG)
-    assert (out / "comparison-diagnostics.png").read_bytes().startswith(PNG)  # NEAT logs diagnostics
+    assert (out / "comparison-diagnostics.png").read_bytes().startswith(PNG)
     assert "neat reg=1 red-green-red" in capsys.readouterr().out
     es_only = tmp_path / "cmp-es"
     assert cli_main(["compare", str(sweep / "openai-es"), "--out", str(es_only)]) == 0
-    assert not (es_only / "comparison-diagnostics.png").exists()  # the ES log none
+    assert (es_only / "comparison-diagnostics.png").read_bytes().startswith(PNG)  # the ES log their distance too
 
 
 def test_runs_from_before_the_diagnostics_columns(sweep, tmp_path):
-    """NEAT runs written before metrics.csv had the optimiser's diagnostics columns still plot
-    and compare as before."""
+    """Runs written before metrics.csv had the optimisers' diagnostics columns still plot and
+    compare as before, without a diagnostics figure."""
     old = tmp_path / "old"
-    shutil.copytree(sweep / "neat", old)
+    shutil.copytree(sweep / "neat", old / "neat")
+    shutil.copytree(sweep / "openai-es", old / "openai-es")
     diagnostics = {"distance_mean", "distance_std", "disabled_fraction"}
-    for metrics in old.glob("*/metrics.csv"):
+    for metrics in old.glob("**/metrics.csv"):
         with open(metrics, newline="") as handle:
             rows = list(csv.DictReader(handle))
         columns = [c for c in rows[0] if c not in diagnostics]
-        assert len(columns) == len(rows[0]) - len(diagnostics)
+        assert len(columns) == len(rows[0]) - len(diagnostics & set(rows[0])) < len(rows[0])
         with open(metrics, "w", newline="") as handle:
             writer = csv.DictWriter(handle, columns, extrasaction="ignore", lineterminator="\n")
             writer.writeheader()
             writer.writerows(rows)
-    assert cli_main(["plot", str(old), "--out", str(tmp_path / "figures")]) == 0
+    assert cli_main(["plot", str(old / "neat"), "--out", str(tmp_path / "figures")]) == 0
     assert len(list((tmp_path / "figures").glob("*.png"))) == 5
     assert cli_main(["compare", str(old), "--out", str(tmp_path / "cmp")]) == 0
     assert (tmp_path / "cmp" / "comparison.md").is_file()
+    assert not (tmp_path / "cmp" / "comparison-diagnostics.png").exists()
 
 
 def test_bootstrap_interval():
