@@ -215,8 +215,11 @@ def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]
     for each configuration without lambda that was run with several lambdas, and each of its seeds,
     the run whose lambda maximises ``selection_score`` (ties: the smaller lambda).
 
-    Returns one dict per such configuration: ``config`` (the config of its first chosen run) and
-    ``choices``, one per seed in ascending order: ``seed``, ``reg``, ``score``, ``tag``."""
+    Returns one dict per such configuration: ``config`` (the config of its first chosen run),
+    ``choices``, one per seed in ascending order: ``seed``, ``reg``, ``score``, ``tag``, and
+    ``shared``, the one lambda for every seed: among the lambdas every seed ran, the one whose
+    mean ``selection_score`` over the seeds is highest (ties: the smaller lambda), with
+    ``means`` (lambda -> that mean); ``None`` where no lambda was run by every seed."""
     groups: dict[str, dict[str, Any]] = {}
     for config, summary, tag in runs:
         rest = {k: v for k, v in configuration_of(config).items() if k != "reg"}
@@ -235,7 +238,16 @@ def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]
         for seed in sorted(group["by_seed"]):
             score, reg, tag = max(group["by_seed"][seed], key=lambda c: (c[0], -c[1]))
             choices.append({"seed": seed, "reg": reg, "score": score, "tag": tag})
-        result.append({"config": group["configs"][choices[0]["tag"]], "choices": choices})
+        scores: dict[float, list[float]] = {}
+        for runs_of_seed in group["by_seed"].values():
+            for score, reg, _ in runs_of_seed:
+                scores.setdefault(reg, []).append(score)
+        means = {reg: sum(v) / len(v) for reg, v in sorted(scores.items()) if len(v) == len(group["by_seed"])}
+        shared = None
+        if means:
+            best = max(means, key=lambda reg: (means[reg], -reg))
+            shared = {"reg": best, "means": means}
+        result.append({"config": group["configs"][choices[0]["tag"]], "choices": choices, "shared": shared})
     return result
 
 
@@ -255,17 +267,24 @@ def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any,
         config = selection["config"]
         label = model_specific_label(config, all_configs)
         lambdas = ", ".join(f"{c['seed']}: {c['reg']:g}" for c in selection["choices"])
+        shared = selection.get("shared")
+        one = "" if shared is None else (f"{shared['reg']:g} (" + ", ".join(
+            f"{reg:g}: {mean:.2f}" for reg, mean in shared["means"].items()) + ")")
         found = {CRITERION: ("selection", Estimate.of([c["score"] for c in selection["choices"]])),
                  **estimates([summaries[c["tag"]] for c in selection["choices"]])}
         rows += csv_rows(label, config, found, reg="m.s. " + " ".join(f"{c['reg']:g}" for c in selection["choices"]))
-        overview.append([label, len(selection["choices"]), lambdas, *(_cell(found, k) for k in (CRITERION, *TRANSFER))])
+        overview.append([label, len(selection["choices"]), lambdas, one,
+                         *(_cell(found, k) for k in (CRITERION, *TRANSFER))])
         sections.append(section(f"### {label}", f"lambda per seed: {lambdas}", found))
     markdown = "\n".join([
         "## Model-specific lambda (m.s. reg)", "",
         f"Per configuration and seed, the lambda of the sweep maximising {CRITERION} (the top individual's "
         "current performance plus its retention of the first task, at the end of the second task; ties: "
-        "the smaller lambda), from summary.json. Mean over seeds [95% bootstrap interval] of the chosen runs.", "",
-        *table(["configuration", "n seeds", "lambda per seed", CRITERION, *TRANSFER], overview), "",
+        "the smaller lambda), from summary.json. Mean over seeds [95% bootstrap interval] of the chosen runs. "
+        "One lambda for all seeds: among the lambdas every seed ran, the one with the highest mean of the "
+        "criterion over the seeds (ties: the smaller), with each lambda's mean.", "",
+        *table(["configuration", "n seeds", "lambda per seed", "one lambda for all seeds (mean per lambda)",
+                CRITERION, *TRANSFER], overview), "",
         *sections]).rstrip("\n")
     return rows, markdown
 

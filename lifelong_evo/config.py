@@ -86,6 +86,12 @@ class RunConfig:
     def phases(self):
         return parse_schedule(self.schedule, self.generations)
 
+    def algo_options_resolved(self) -> dict[str, Any]:
+        """Every option of the algorithm, the defaults included: the options the run evolves with."""
+        from algorithms import REGISTRY
+
+        return asdict(REGISTRY[self.algo].Options(**self.algo_options))
+
     def env_config(self) -> ForagingConfig:
         phases = self.phases()
         values = {"colors": arena_colors(phases), **self.env}

@@ -35,6 +35,11 @@ from .config import RunConfig
 from .errors import UserError
 from .metrics import GenerationRecord
 
+RESOLVED = (("env", "env_resolved"), ("algo_options", "algo_options_resolved"))
+"""config.json's settings as given, each with its resolved form written beside it."""
+RESOLVED_KEYS = ("env_resolved", "algo_options_resolved", "versions")
+"""config.json's keys that are no RunConfig field."""
+
 
 class RunDirError(UserError):
     """A run directory, or one of its files, that is missing or not what the contract says."""
@@ -100,14 +105,16 @@ class RunDir:
     # -- config.json, summary.json, controllers/ --------------------------------------------------
 
     def write_config(self, config: RunConfig) -> None:
-        """config.json: every RunConfig field, the resolved environment and the library versions."""
+        """config.json: every RunConfig field, the resolved environment and algorithm options
+        (defaults included) and the library versions."""
         write_json(self.config, {**config.to_dict(), "env_resolved": config.env_config().to_dict(),
+                                 "algo_options_resolved": config.algo_options_resolved(),
                                  "versions": library_versions()})
 
     def read_config(self) -> RunConfig:
         """The configuration the run was created with."""
         values = read_json(self.config)
-        return RunConfig.from_dict({k: v for k, v in values.items() if k not in ("env_resolved", "versions")},
+        return RunConfig.from_dict({k: v for k, v in values.items() if k not in RESOLVED_KEYS},
                                    str(self.config))
 
     def write_summary(self, summary: dict[str, Any]) -> None:
@@ -361,7 +368,8 @@ class Run:
 
     path: Path
     config: dict[str, Any]
-    """config.json as written (RunConfig's fields, ``env_resolved``, ``versions``)."""
+    """config.json as written (RunConfig's fields, ``env_resolved``, ``algo_options_resolved``,
+    ``versions``)."""
     summary: dict[str, Any]
     metrics: list[dict[str, str]] = field(default_factory=list)
     """metrics.csv's rows, checked by ``read_metrics``."""
@@ -403,8 +411,16 @@ def _float(text: str) -> float:
 
 def configuration_of(config: dict[str, Any]) -> dict[str, Any]:
     """The settings of a config.json that make runs different configurations
-    (``RunConfig.configuration_settings``; the library versions are no setting)."""
-    return RunConfig.configuration_settings({k: v for k, v in config.items() if k != "versions"})
+    (``RunConfig.configuration_settings``; the library versions are no setting). Where config.json
+    holds the resolved environment and algorithm options, they stand for the ones given, so a
+    default stated and a default left out are one configuration. (A run written before
+    ``algo_options_resolved`` existed keeps its options as given: the defaults it ran with may
+    not be today's, as NEAT's ``genetics`` shows.)"""
+    values = {k: v for k, v in config.items() if k != "versions"}
+    for given, resolved in RESOLVED:
+        if resolved in values:
+            values.pop(given, None)
+    return RunConfig.configuration_settings(values)
 
 
 def config_key(config: dict[str, Any]) -> str:
@@ -414,19 +430,25 @@ def config_key(config: dict[str, Any]) -> str:
 
 def describe_config(config: dict[str, Any], others: list[dict[str, Any]] | None = None) -> str:
     """A short label: algorithm, lambda, schedule, and whatever else of the configuration differs
-    from ``others``."""
+    from ``others`` (an algorithm option only among runs of the same algorithm, each option and
+    environment setting by itself: ``genetics=2.0``, ``env.see_other_agents=True``)."""
     label = f"{config.get('algo')} reg={config.get('reg', 0):g} {config.get('schedule')}"
-    if others:
-        shown = {"algo", "reg", "schedule", "env_resolved"}
-        differing = sorted(k for k in configuration_of(config) if k not in shown
-                           and any(o.get(k) != config.get(k) for o in others))
-        extra = []
-        for key in differing:
-            value = config[key]
-            extra.append(f"{key}={json.dumps(value, sort_keys=True) if isinstance(value, dict) else value}")
-        if extra:
-            label += " " + " ".join(extra)
-    return label
+    if not others:
+        return label
+    mine = configuration_of(config)
+    theirs = [configuration_of(o) for o in others]
+    same_algo = [t for t, o in zip(theirs, others) if o.get("algo") == config.get("algo")]
+    extra = []
+    for key in sorted(k for k in mine if k not in ("algo", "reg", "schedule")):
+        value = mine[key]
+        compared = same_algo if key in ("algo_options", "algo_options_resolved") else theirs
+        if isinstance(value, dict):
+            prefix = "env." if key in ("env", "env_resolved") else ""
+            extra += [f"{prefix}{name}={value[name]}" for name in sorted(value)
+                      if any(t.get(key, {}).get(name) != value[name] for t in compared)]
+        elif any(t.get(key) != value for t in compared):
+            extra.append(f"{key}={value}")
+    return " ".join([label, *extra])
 
 
 def is_run_dir(path: Path) -> bool:

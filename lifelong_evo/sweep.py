@@ -71,7 +71,7 @@ from .flags import NESTED, add_run_options
 from .options import flag, parse_value, plain, schema
 from .report import duration
 from .rerun_recorder import RerunRecorder
-from .rundir import RunDir, RunDirError, load_run, read_json, write_json
+from .rundir import RESOLVED, RunDir, RunDirError, load_run, read_json, write_json
 
 RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in NESTED]
 """Run options with a flag of their own."""
@@ -128,10 +128,12 @@ class Grid:
 
     @property
     def columns(self) -> list[str]:
-        """Every axis, shared or one algorithm's, in trial-name order."""
-        keys = dict.fromkeys(self.axes)
-        for axes, _ in self.by_algo.values():
-            keys.update(dict.fromkeys(axes))
+        """Every axis, shared or one algorithm's, variants' keys included, in trial-name order."""
+        keys: dict[str, None] = {}
+        for axes in (self.axes, *(axes for axes, _ in self.by_algo.values())):
+            keys.update(dict.fromkeys(k for k in axes if k != VARIANTS))
+            for variant in axes.get(VARIANTS, []):
+                keys.update(dict.fromkeys(variant))
         return sorted(keys, key=_axis_rank)
 
 
@@ -160,8 +162,9 @@ def _split_assignment(item: str, what: str) -> tuple[str, list[str]]:
 
 def _file_layer(path: str):
     """A sweep TOML: run options (fixed), a [grid] table of lists (axes) with optional
-    ``[grid.<algo>]`` tables (axes and fixed values for that algorithm's trials only), and
-    preset/name. Returns (axes, fixed, by_algo, preset, name)."""
+    ``[grid.<algo>]`` tables (axes and fixed values for that algorithm's trials only), each table
+    with optional ``variants`` (sets of values given together: one axis), and preset/name.
+    Returns (axes, fixed, by_algo, preset, name)."""
     from algorithms import REGISTRY
 
     values = load_toml(path)
@@ -188,10 +191,32 @@ def _file_layer(path: str):
         else:
             fixed[key] = _coerce(name, value, f"in {path}") if "." not in key else value
 
+    def variants(listed: Any, where: str) -> list[dict[str, Any]]:
+        """``variants = [{reg = 0}, {reg = 10, algo_options = {importance = "l2"}}]``: each table
+        a set of values given together, flattened to keys like ``algo_options.importance``."""
+        if not isinstance(listed, list) or not listed or not all(isinstance(v, dict) and v for v in listed):
+            raise UserError(f"{where} variants in {path} must be a list of tables, each giving values "
+                           "together, e.g. variants = [{reg = 0}, {reg = 10, algo_options = {importance = \"l2\"}}]")
+        flat = []
+        for variant in listed:
+            values: dict[str, Any] = {}
+            for key, value in variant.items():
+                if key in NESTED and isinstance(value, dict):
+                    values.update((f"{key}.{sub}", subvalue) for sub, subvalue in value.items())
+                elif key in RUN_FIELDS and key != "algo":
+                    values[key] = _coerce(key, value, f"in {where} variants of {path}")
+                else:
+                    raise UserError(f"unknown key {key!r} in {where} variants of {path}: use run options "
+                                   "(not algo), env or algo_options")
+            flat.append(values)
+        return flat
+
     def grid_table(table: dict, axes: dict, fixed: dict, algo: str | None) -> None:
         where = f"[grid.{algo}]" if algo else "[grid]"
         for gkey, gvalue in table.items():
-            if gkey in NESTED and isinstance(gvalue, dict):
+            if gkey == VARIANTS:
+                axes[VARIANTS] = variants(gvalue, where)
+            elif gkey in NESTED and isinstance(gvalue, dict):
                 for sub, subvalue in gvalue.items():
                     put(f"{gkey}.{sub}", subvalue, True, axes, fixed)
             elif gkey in RUN_FIELDS and not (algo and gkey == "algo"):
@@ -201,8 +226,12 @@ def _file_layer(path: str):
                 grid_table(gvalue, *by_algo[gkey], gkey)
             else:
                 raise UserError(f"unknown {where} key {gkey!r} in {path}: use run options, "
-                                f"{where[:-1]}.env] or {where[:-1]}.algo_options]"
+                                f"{where[:-1]}.env], {where[:-1]}.algo_options], variants"
                                 + ("" if algo else ", or [grid.<algo>] for one algorithm's trials"))
+        given_twice = sorted(set(axes) & set().union(*axes.get(VARIANTS, [])))
+        if given_twice:
+            raise UserError(f"{', '.join(given_twice)} in {path} is an axis of {where} and set by its variants too: "
+                            "give it in one")
 
     for key, value in values.items():
         if key in ("preset", "name"):
@@ -222,6 +251,14 @@ def _file_layer(path: str):
 
 
 _FIRST_AXES = ["algo", "schedule", "reg"]  # as in RunConfig.default_name
+VARIANTS = "variants"
+"""The axis of a grid table whose values are sets of values given together (dicts by key)."""
+
+
+def _expand(values: dict[str, Any]) -> dict[str, Any]:
+    """One trial's axis values with its variant's values in place of the variant."""
+    variant = values.get(VARIANTS, {})
+    return {**{k: v for k, v in values.items() if k != VARIANTS}, **variant}
 
 
 def _axis_rank(key: str) -> tuple[int, str]:
@@ -246,6 +283,9 @@ def build_grid(args: argparse.Namespace) -> Grid:
     def put(key: str, values: list[Any]) -> None:
         for table in (axes, fixed, *(t for tables in by_algo.values() for t in tables)):  # a flag wins everywhere
             table.pop(key, None)
+            if VARIANTS in table:  # variants that differed only in this key are one now
+                kept = [{k: v for k, v in variant.items() if k != key} for variant in table[VARIANTS]]
+                table[VARIANTS] = [v for i, v in enumerate(kept) if v not in kept[:i]]
         if len(values) != len(set(map(repr, values))):
             raise UserError(f"{key} lists a value twice ({values}): give each value once")
         if len(values) > 1:
@@ -273,10 +313,13 @@ def build_grid(args: argparse.Namespace) -> Grid:
         if "device" not in axes:
             fixed["device"] = "cuda"
     algos = axes.get("algo", [fixed.get("algo", RunConfig().algo)])
+    if getattr(args, "algo", None) is not None:  # --algo picks some of the file's algorithms: drop the others' tables
+        by_algo = {algo: tables for algo, tables in by_algo.items() if algo in algos}
     for algo, (algo_axes, _) in by_algo.items():
         if algo not in algos:
             raise UserError(f"[grid.{algo}] is for {algo}'s trials, but no trial runs {algo}: add it to algo")
-        shared = sorted(set(algo_axes) & set(axes))
+        shared = sorted((set(algo_axes) | set().union(*algo_axes.get(VARIANTS, [])))
+                        & (set(axes) | set().union(*axes.get(VARIANTS, []))))
         if shared:
             raise UserError(f"{', '.join(shared)} is an axis of every trial and of [grid.{algo}] too: give it in one")
     axes = {k: axes[k] for k in sorted(axes, key=_axis_rank)}
@@ -285,7 +328,7 @@ def build_grid(args: argparse.Namespace) -> Grid:
         common = dict(zip(axes, combo))
         algo_axes, algo_fixed = by_algo.get(common.get("algo", fixed.get("algo", RunConfig().algo)), ({}, {}))
         for algo_combo in itertools.product(*algo_axes.values()):
-            values = {**common, **dict(zip(algo_axes, algo_combo))}
+            values = _expand({**_expand(common), **dict(zip(algo_axes, algo_combo))})
             values = {k: values[k] for k in sorted(values, key=_axis_rank)}
             # a cluster's machines, not this one, must have the device and compiler its trials need
             config = _resolve(preset, {**fixed, **algo_fixed, **values}, values, machine=args.address is None)
@@ -384,7 +427,14 @@ def trial_state(path: Path, config: RunConfig) -> tuple[str, str]:
     except RunDirError as error:
         return "failed", str(error)
     mine = RunConfig.outcome_settings(config.to_dict())
-    different = sorted(k for k in mine if stored.get(k) != mine[k])
+    theirs = dict(stored)
+    # compared as resolved where the trial directory says how it resolved them: a default stated
+    # in one and left out in the other is the same setting
+    resolved = {"env": config.env_config().to_dict(), "algo_options": config.algo_options_resolved()}
+    for given, written in RESOLVED:
+        if written in stored and given in mine:
+            mine[given], theirs[given] = json.loads(json.dumps(resolved[given])), stored[written]
+    different = sorted(k for k in mine if theirs.get(k) != mine[k])
     if different:
         return "failed", (f"{path} was run with other settings ({', '.join(different)} differ): "
                           "pass --overwrite to restart it, or use another --name")
@@ -433,7 +483,11 @@ def aggregate(sweep_dir: Path, grid: Grid) -> str:
         (sweep_dir / "model_specific_lambda.md").write_text(ms_markdown + "\n")
         write_json(sweep_dir / "model_specific_lambda.json",
                    [{"configuration": model_specific_label(s["config"], configs), "criterion": CRITERION,
-                     "choices": s["choices"]} for s in selections])
+                     "choices": s["choices"],
+                     "one_lambda_for_all_seeds": None if s["shared"] is None else {
+                         "reg": s["shared"]["reg"],
+                         "mean_per_lambda": [{"reg": r, "mean": m} for r, m in s["shared"]["means"].items()]}}
+                    for s in selections])
     atomic_write_bytes(sweep_dir / "comparison.md", (markdown + "\n").encode())
     write_csv(rows, sweep_dir / "comparison.csv")
     return markdown

@@ -12,11 +12,13 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import pytest
 import torch
 
+from algorithms import REGISTRY
 from lifelong_evo.cli import main
 from lifelong_evo.metrics import Retention, retention, summarise
 
@@ -70,6 +72,10 @@ def test_run_directory_contract(smoke_runs, name):
     config = json.loads((run / "config.json").read_text())
     assert config["algo"] == name.split("-genetics")[0]
     assert config["versions"]["torch"] and config["versions"]["neat-python"]
+    # the options the run evolved with, defaults included
+    resolved = asdict(REGISTRY[config["algo"]].Options(**config["algo_options"]))
+    assert config["algo_options_resolved"] == json.loads(json.dumps(resolved))
+    assert "genetics" in config["algo_options_resolved"] or config["algo"] != "neat"
     assert [p.name for p in sorted((run / "controllers").glob("task*.json"))] == \
         ["task0-red-top.json", "task1-green-top.json", "task2-red-top.json"]
     exported = json.loads((run / "controllers/final-top.json").read_text())
@@ -365,10 +371,12 @@ def test_resume_takes_the_original_command(smoke_runs, tmp_path, capsys):
 
 def test_ctrl_c_prints_the_command_that_resumes(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    # long enough (90 generations) that the run is still going when the signal arrives
-    stopped = subprocess.Popen(_cli("--algo", "neat", "--preset", "smoke", "--generations", "30", "--env", "duration=60",
+    # SIGINT back to its default in the child: a shell that starts pytest in the background
+    # ignores it, the child would inherit that, and Python would never raise KeyboardInterrupt
+    stopped = subprocess.Popen(_cli("--algo", "neat", "--preset", "smoke", "--generations", "4", "--env", "duration=60",
                                     "--out", str(tmp_path), "--name", "stopped", "--no-record"),
-                               env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                               env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     metrics = tmp_path / "stopped/metrics.csv"
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and stopped.poll() is None:

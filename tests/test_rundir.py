@@ -1,16 +1,22 @@
 """The metrics.csv and species.csv contract on fixed inputs: a ``GenerationRecord`` becomes the
 same bytes a run has always written (the headers are those of real NEAT and OpenAI-ES runs), and
-a resumed log keeps only the generations its checkpoint covers."""
+a resumed log keeps only the generations its checkpoint covers. How config.json's settings group
+runs into configurations and label them."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
+from algorithms.neat_genetics import DEFAULT_GENETICS
+from envs import ForagingConfig
+from lifelong_evo.config import RunConfig
 from lifelong_evo.metrics import FitnessStats, GenerationRecord, Retention
-from lifelong_evo.rundir import GenerationLog, MetricsLayout, RunDir, retention_columns
+from lifelong_evo.rundir import (GenerationLog, MetricsLayout, Run, RunDir, describe_config, group_runs,
+                                 retention_columns)
 
 NEAT = MetricsLayout(("red", "green"), species=True, centre=False,
                      diagnostics=("distance_mean", "distance_std", "disabled_fraction"))
-ES = MetricsLayout(("red", "green"), species=False, centre=True)
+ES = MetricsLayout(("red", "green"), species=False, centre=True, diagnostics=("distance_mean", "distance_std"))
 
 
 def record(generation: int, **changes) -> GenerationRecord:
@@ -47,9 +53,9 @@ def test_an_es_row_has_the_centre_and_only_declared_diagnostics(tmp_path):
     log.close()
     header, row = run_dir.metrics.read_text().splitlines()
     assert header == ("task,task_index,generation,generation_in_task,best,mean,median,std,reg_best,reg_mean,"
-                      "reg_median,reg_std,top,centre,retention_pop_red,retention_top_red,retention_centre_red,"
+                      "reg_median,reg_std,top,centre,distance_mean,distance_std,retention_pop_red,retention_top_red,retention_centre_red,"
                       "retention_pop_green,retention_top_green,retention_centre_green")
-    assert row == "green,1,7,2,1.5,-0.025,0.0,0.4866980583482947,1.0,-0.075,0.0,0.3269174207655505,1.0,0.25,3.5,0.5,-1.0,,,"
+    assert row == "green,1,7,2,1.5,-0.025,0.0,0.4866980583482947,1.0,-0.075,0.0,0.3269174207655505,1.0,0.25,,,3.5,0.5,-1.0,,,"
     assert not run_dir.species.exists()
 
 
@@ -73,3 +79,50 @@ def test_a_resumed_log_keeps_the_generations_its_checkpoint_covers(tmp_path):
     log.close()
     assert run_dir.metrics.read_text() == whole
     assert run_dir.species.read_text().splitlines()[-1] == "7,4,8"
+
+
+def _config(algo="neat", seed=1, given=None, resolved=True, env=None, **settings):
+    """A config.json as a run writes it (``resolved=False``: as runs wrote it before
+    ``algo_options_resolved`` existed)."""
+    config = RunConfig(algo=algo, seed=seed, algo_options=given or {}, env=env or {}, **settings)
+    written = {**config.to_dict(), "env_resolved": config.env_config().to_dict(), "versions": {"torch": "x"}}
+    if resolved:
+        written["algo_options_resolved"] = config.algo_options_resolved()
+    return written
+
+
+def _groups(configs):
+    runs = [Run(path=Path(f"run{i}"), config=c, summary={}) for i, c in enumerate(configs)]
+    return [[int(r.path.name[3:]) for r in group] for group in group_runs(runs)]
+
+
+def test_a_default_stated_or_left_out_is_one_configuration():
+    stated, implicit = _config(seed=1, given={"genetics": DEFAULT_GENETICS}), _config(seed=2)
+    other = _config(seed=3, given={"genetics": "2.0"})
+    assert stated["algo_options_resolved"] == implicit["algo_options_resolved"] != other["algo_options_resolved"]
+    assert _groups([stated, implicit, other]) == [[0, 1], [2]]
+    # the environment too: a stated default is no new configuration, another value is
+    env_default = _config(seed=4, env={"n_agents": ForagingConfig().n_agents})
+    env_other = _config(seed=5, env={"see_other_agents": True})
+    assert _groups([implicit, env_default, env_other]) == [[0, 1], [2]]
+
+
+def test_runs_written_before_resolved_options_keep_their_options_as_given():
+    """Such a run may have run with another default (NEAT's genetics was 2.0's), so it is never
+    merged with today's runs on a guess."""
+    old = _config(seed=1, resolved=False)
+    assert _groups([old, _config(seed=2), _config(seed=3, resolved=False)]) == [[0, 2], [1]]
+
+
+def test_labels_name_what_sets_a_configuration_apart():
+    neat_092, neat_20 = _config(), _config(given={"genetics": "2.0"})
+    es, es_sigma = _config(algo="openai-es"), _config(algo="openai-es", given={"sigma": 0.05})
+    seen = _config(env={"see_other_agents": True})
+    configs = [neat_092, neat_20, es, es_sigma, seen]
+    labels = [describe_config(c, configs) for c in configs]
+    assert labels == ["neat reg=0 red-green-red genetics=0.92 env.see_other_agents=False",
+                      "neat reg=0 red-green-red genetics=2.0 env.see_other_agents=False",
+                      "openai-es reg=0 red-green-red sigma=0.1 env.see_other_agents=False",
+                      "openai-es reg=0 red-green-red sigma=0.05 env.see_other_agents=False",
+                      "neat reg=0 red-green-red genetics=0.92 env.see_other_agents=True"]
+    assert describe_config(neat_092, [neat_092, _config(seed=9)]) == "neat reg=0 red-green-red"

@@ -10,9 +10,10 @@ from pathlib import Path
 
 import pytest
 
+from envs import ForagingConfig
 from lifelong_evo.cli import build_parser, main
 from lifelong_evo.compare import model_specific_report, select_model_specific, selection_score
-from lifelong_evo.sweep import build_grid
+from lifelong_evo.sweep import build_grid, trial_state
 
 ray = pytest.importorskip("ray")
 
@@ -88,6 +89,12 @@ def test_second_invocation_skips_finished_trials(smoke_sweep, capsys):
     assert "| neat reg=0 red-green-red | 2 |" in printed  # the table is printed at the end
     assert {p: p.stat().st_mtime_ns for p in sweep_dir.glob("*/metrics.csv")} == before
     assert all(row["status"] == "done" for row in _trials(sweep_dir).values())
+    # a default stated is the same setting as a default left out; another value is not
+    stated = [*argv, "--env", f"n_agents={ForagingConfig().n_agents}"]
+    assert main(stated) == 0 and capsys.readouterr().out.count("skipped") == 4
+    trial = build_grid(build_parser().parse_args([*stated[:-1], "n_agents=4"])).trials[0]
+    state, why = trial_state(sweep_dir / trial.name, trial.config)
+    assert state == "failed" and "env differ" in why
 
 
 def test_failed_trial_is_reported_and_the_others_finish(local_ray, tmp_path, capsys):
@@ -178,6 +185,11 @@ def test_model_specific_lambda_selection():
     assert selection["config"]["population"] == 12
     assert [(c["seed"], c["reg"], c["score"], c["tag"]) for c in selection["choices"]] == \
         [(1, 5.0, 7.0, "neat-reg5-seed1"), (2, 0.0, 8.0, "neat-reg0-seed2")]
+    # one lambda for both seeds: means 0: 7.0, 5: 6.5, 11: 7.0 -> 0 (tie with 11: the smaller)
+    assert selection["shared"] == {"reg": 0.0, "means": {0.0: 7.0, 5.0: 6.5, 11.0: 7.0}}
+    # a lambda one seed did not run is no candidate
+    (partial,) = select_model_specific([r for r in runs if r[2] != "neat-reg0-seed2"])
+    assert partial["shared"] == {"reg": 11.0, "means": {5.0: 6.5, 11.0: 7.0}}
     # an unfinished run is scored from its forgetting rows; before the end of phase 1 it is not scored
     assert selection_score(_summary(4.0, 3.0, complete=False)) == 7.0
     assert selection_score({"phases": ["red"], "current": [5.0], "forgetting": []}) is None
@@ -185,10 +197,50 @@ def test_model_specific_lambda_selection():
     rows, markdown = model_specific_report([selection], {tag: summary for _, summary, tag in runs},
                                            [config for config, _, _ in runs])
     (line,) = [row for row in markdown.splitlines() if row.startswith("| neat reg=m.s.")]
-    assert "| 2 | 1: 5, 2: 0 | 7.50 [7.00, 8.00] |" in line
+    assert "| 2 | 1: 5, 2: 0 | 0 (0: 7.00, 5: 6.50, 11: 7.00) | 7.50 [7.00, 8.00] |" in line
     c1 = next(row for row in rows if row["metric"] == "C_top phase 1 (green)")
     assert c1["values"] == [4.0, 6.0] and c1["reg"] == "m.s. 5 0" and c1["mean"] == 5.0
     assert next(row for row in rows if row["metric"] == "C phase 1 (green)")["values"] == [14.0, 16.0]
+
+
+def test_variants_give_values_together(tmp_path, capsys):
+    """``variants``: each a set of values given together, so an ES's lambda can go with its
+    importance (and lambda = 0 run once) where a product of axes would run every pairing."""
+    sweep_file = tmp_path / "families.toml"
+    sweep_file.write_text(
+        'preset = "smoke"\n[grid]\nalgo = ["neat", "openai-es"]\nseed = [1, 2]\n[grid.neat]\nreg = [0, 11]\n'
+        '[grid.openai-es]\nvariants = [{ reg = 0 }, { reg = 10, algo_options = { importance = "l2" } },\n'
+        '  { reg = 100, algo_options = { importance = "ewc", sigma = 0.05 } }]\n')
+    grid = build_grid(build_parser().parse_args(["sweep", "--config", str(sweep_file), "--out", str(tmp_path)]))
+    by_name = {t.name: t.config for t in grid.trials}
+    assert list(by_name) == ["neat-reg0-seed1", "neat-reg11-seed1", "neat-reg0-seed2", "neat-reg11-seed2",
+                             *(name for seed in (1, 2) for name in (
+                                 f"openai-es-reg0-seed{seed}", f"openai-es-reg10-importancel2-seed{seed}",
+                                 f"openai-es-reg100-importanceewc-sigma0.05-seed{seed}"))]
+    assert by_name["openai-es-reg0-seed2"].algo_options == {} and by_name["openai-es-reg0-seed2"].reg == 0
+    assert by_name["openai-es-reg10-importancel2-seed1"].algo_options == {"importance": "l2"}
+    assert by_name["openai-es-reg100-importanceewc-sigma0.05-seed1"].algo_options == {"importance": "ewc", "sigma": 0.05}
+    assert by_name["openai-es-reg100-importanceewc-sigma0.05-seed1"].reg == 100.0
+    assert grid.columns == ["algo", "reg", "algo_options.importance", "algo_options.sigma", "seed"]
+    # a flag wins over the variants too; variants it makes equal are one
+    args = build_parser().parse_args(["sweep", "--config", str(sweep_file), "--algo", "openai-es",
+                                      "--option", "importance=l2", "--option", "sigma=0.1", "--seed", "1"])
+    assert [(t.name, t.config.reg) for t in build_grid(args).trials] == [("reg0", 0.0), ("reg10", 10.0), ("reg100", 100.0)]
+    args = build_parser().parse_args(["sweep", "--config", str(sweep_file), "--algo", "openai-es", "--reg", "5",
+                                      "--option", "importance=l2", "--option", "sigma=0.1", "--seed", "1"])
+    assert [(t.name, t.config.reg) for t in build_grid(args).trials] == [("openai-es-red-green-red-reg5-seed1", 5.0)]
+    for text, message in (
+            ('[grid]\nvariants = [1, 2]\n', "variants in"),
+            ('[grid]\nvariants = []\n', "must be a list of tables"),
+            ('[grid]\nvariants = [{ algo = "snes" }]\n', "unknown key 'algo' in [grid] variants"),
+            ('[grid]\nvariants = [{ reg = "ten" }]\n', "--reg"),
+            ('[grid]\nreg = [0, 1]\nvariants = [{ reg = 2 }]\n', "reg in"),
+            ('[grid]\nalgo = ["neat", "snes"]\nreg = [0, 1]\n[grid.snes]\nvariants = [{ reg = 2 }]\n',
+             "reg is an axis of every trial and of [grid.snes] too")):
+        sweep_file.write_text(text)
+        assert main(["sweep", "--config", str(sweep_file), "--out", str(tmp_path), "--dry-run"]) == 2
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1, err
 
 
 def test_one_grid_for_algorithms_whose_options_differ(tmp_path, capsys):
