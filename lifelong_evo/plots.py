@@ -1,7 +1,9 @@
 """``python -m lifelong_evo plot RUN... [--out DIR]``: the paper's figures as PNG (matplotlib, Agg).
 
 It reads run directories through ``lifelong_evo.rundir`` and only draws. For each group of runs
-that share a configuration (``rundir.group_runs``: repetitions that differ in seed or speed settings):
+that share a configuration (``rundir.group_runs``: repetitions that differ in seed or speed settings),
+with ``<prefix>`` = ``<algo>-<schedule>-reg<lambda>`` followed by whatever else sets the
+configuration apart from the others plotted (``rundir.config_differences``, e.g. ``-importance-ewc``):
 
 ``<prefix>-retention-pop.png``  current performance C (solid) and population retention R_pop
                                  (dashed, dots where measured) per task colour over generations;
@@ -29,7 +31,7 @@ import numpy as np
 from envs import task_rgb
 
 from .errors import UserError
-from .rundir import Run, describe_config, group_runs, load_runs, retention_columns
+from .rundir import Run, config_differences, describe_config, group_runs, load_runs, retention_columns
 
 
 def task_color(task: str) -> tuple[float, float, float]:
@@ -101,17 +103,16 @@ def draw_drifts(ax, run: Run) -> None:
         ax.axvline(g - 0.5, color="0.3", linestyle=(0, (6, 4)), linewidth=1.1, label="drift" if i == 0 else None)
 
 
-def _title(group: list[Run]) -> str:
+def _title(group: list[Run], label: str) -> str:
     seeds = [r.seed for r in group]
-    text = describe_config(group[0].config)
-    return text + (f" ({len(group)} seeds, mean and min-max)" if len(group) > 1 else f" (seed {seeds[0]})")
+    return label + (f" ({len(group)} seeds, mean and min-max)" if len(group) > 1 else f" (seed {seeds[0]})")
 
 
 # ---------------------------------------------------------------------------------------------
 # Figures
 
 
-def figure_retention(group: list[Run], level: str, path: Path) -> Path:
+def figure_retention(group: list[Run], level: str, path: Path, label: str) -> Path:
     import matplotlib.pyplot as plt
 
     what = {"pop": "population retention R_pop", "top": "top-individual retention R_top"}[level]
@@ -127,13 +128,13 @@ def figure_retention(group: list[Run], level: str, path: Path) -> Path:
     draw_drifts(ax, group[0])
     ax.set_xlabel("generation")
     ax.set_ylabel("fitness (reward per episode)")
-    ax.set_title(f"Current performance and {what}\n{_title(group)}", fontsize=10)
+    ax.set_title(f"Current performance and {what}\n{_title(group, label)}", fontsize=10)
     ax.grid(alpha=0.25)
     ax.legend(fontsize=8, loc="best")
     return save(fig, path)
 
 
-def figure_species(group: list[Run], path: Path) -> Path | None:
+def figure_species(group: list[Run], path: Path, label: str) -> Path | None:
     import matplotlib.pyplot as plt
 
     if not group[0].metrics or "species" not in group[0].metrics[0]:
@@ -149,7 +150,7 @@ def figure_species(group: list[Run], path: Path) -> Path | None:
     ax.set_ylabel("species")
     ax.margins(y=0.08)
     ax.yaxis.get_major_locator().set_params(integer=True)
-    ax.set_title(f"Number of species\n{_title(group)}", fontsize=10)
+    ax.set_title(f"Number of species\n{_title(group, label)}", fontsize=10)
     ax.grid(alpha=0.25)
     ax.legend(fontsize=8, loc="best")
     return save(fig, path)
@@ -167,7 +168,7 @@ def shade_phases(ax, run: Run) -> None:
             start = i
 
 
-def figure_lifespans(run: Run, path: Path) -> Path | None:
+def figure_lifespans(run: Run, path: Path, label: str) -> Path | None:
     """One horizontal bar per species from its first to its last generation; thickness and shade
     follow its size (members), drifts as dotted lines."""
     import matplotlib.pyplot as plt
@@ -199,7 +200,7 @@ def figure_lifespans(run: Run, path: Path) -> Path | None:
     ax.set_ylabel("species id (by birth)")
     scale = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(0, biggest))
     fig.colorbar(scale, ax=ax, label="members", shrink=0.8)
-    ax.set_title(f"Species lifespans\n{describe_config(run.config)} (seed {run.seed})", fontsize=10)
+    ax.set_title(f"Species lifespans\n{label} (seed {run.seed})", fontsize=10)
     ax.grid(alpha=0.2, axis="x")
     if drift_generations(run):
         ax.legend(fontsize=8, loc="upper right")
@@ -220,19 +221,21 @@ def save(fig, path: Path) -> Path:
     return path
 
 
-def slug(config: dict[str, Any]) -> str:
-    text = f"{config.get('algo')}-{config.get('schedule')}-reg{config.get('reg', 0):g}"
+def slug(config: dict[str, Any], differences: list[str] = ()) -> str:
+    """A file-name prefix: ``neat-red-green-red-reg11``, then what sets the configuration apart
+    (``config_differences``: ``sep-cmaes-red-green-red-reg10-importance-ewc``)."""
+    text = "-".join([f"{config.get('algo')}-{config.get('schedule')}-reg{config.get('reg', 0):g}", *differences])
     return re.sub(r"[^A-Za-z0-9.]+", "-", text).strip("-")
 
 
-def plot_group(group: list[Run], out: Path, prefix: str) -> list[Path]:
-    """Every figure of one configuration's runs; returns the files written."""
-    written = [figure_retention(group, "pop", out / f"{prefix}-retention-pop.png"),
-               figure_retention(group, "top", out / f"{prefix}-retention-top.png"),
-               figure_species(group, out / f"{prefix}-species.png")]
+def plot_group(group: list[Run], out: Path, prefix: str, label: str) -> list[Path]:
+    """Every figure of one configuration's runs, titled ``label``; returns the files written."""
+    written = [figure_retention(group, "pop", out / f"{prefix}-retention-pop.png", label),
+               figure_retention(group, "top", out / f"{prefix}-retention-top.png", label),
+               figure_species(group, out / f"{prefix}-species.png", label)]
     for run in group:  # lifespans are per run: one figure per seed
         name = f"{prefix}-lifespans.png" if len(group) == 1 else f"{prefix}-lifespans-seed{run.seed}.png"
-        written.append(figure_lifespans(run, out / name))
+        written.append(figure_lifespans(run, out / name, label))
     return [path for path in written if path is not None]
 
 
@@ -246,14 +249,12 @@ def plot_runs(paths, out: str | Path | None = None) -> list[Path]:
         raise UserError("the runs have no metrics.csv rows yet: let a run write some generations first")
     groups = group_runs(runs)
     target = Path(out) if out is not None else Path(os.path.commonpath([r.path.resolve() for r in runs]))
+    configs = [group[0].config for group in groups]
     written = []
-    prefixes: dict[str, int] = {}
     for group in groups:
-        prefix = slug(group[0].config)
-        prefixes[prefix] = prefixes.get(prefix, 0) + 1
-        if prefixes[prefix] > 1:  # same algorithm, schedule and lambda, other options
-            prefix += f"-{prefixes[prefix]}"
-        written += plot_group(group, target, prefix)
+        differences = config_differences(group[0].config, configs)
+        written += plot_group(group, target, slug(group[0].config, differences),
+                              describe_config(group[0].config, configs))
     return written
 
 

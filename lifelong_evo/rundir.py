@@ -428,27 +428,31 @@ def config_key(config: dict[str, Any]) -> str:
     return json.dumps(configuration_of(config), sort_keys=True)
 
 
-def describe_config(config: dict[str, Any], others: list[dict[str, Any]] | None = None) -> str:
-    """A short label: algorithm, lambda, schedule, and whatever else of the configuration differs
-    from ``others`` (an algorithm option only among runs of the same algorithm, each option and
-    environment setting by itself: ``genetics=2.0``, ``env.see_other_agents=True``)."""
-    label = f"{config.get('algo')} reg={config.get('reg', 0):g} {config.get('schedule')}"
-    if not others:
-        return label
+def config_differences(config: dict[str, Any], others: list[dict[str, Any]]) -> list[str]:
+    """What sets ``config`` apart from ``others`` beyond algorithm, lambda and schedule, as
+    ``KEY=VALUE`` items: an algorithm option only among runs of the same algorithm, each option
+    and environment setting by itself (``genetics=2.0``, ``env.see_other_agents=True``)."""
     mine = configuration_of(config)
     theirs = [configuration_of(o) for o in others]
     same_algo = [t for t, o in zip(theirs, others) if o.get("algo") == config.get("algo")]
-    extra = []
+    differences = []
     for key in sorted(k for k in mine if k not in ("algo", "reg", "schedule")):
         value = mine[key]
         compared = same_algo if key in ("algo_options", "algo_options_resolved") else theirs
         if isinstance(value, dict):
             prefix = "env." if key in ("env", "env_resolved") else ""
-            extra += [f"{prefix}{name}={value[name]}" for name in sorted(value)
-                      if any(t.get(key, {}).get(name) != value[name] for t in compared)]
+            differences += [f"{prefix}{name}={value[name]}" for name in sorted(value)
+                            if any(t.get(key, {}).get(name) != value[name] for t in compared)]
         elif any(t.get(key) != value for t in compared):
-            extra.append(f"{key}={value}")
-    return " ".join([label, *extra])
+            differences.append(f"{key}={value}")
+    return differences
+
+
+def describe_config(config: dict[str, Any], others: list[dict[str, Any]] | None = None) -> str:
+    """A short label: algorithm, lambda, schedule, and what else sets the configuration apart
+    from ``others`` (``config_differences``)."""
+    label = f"{config.get('algo')} reg={config.get('reg', 0):g} {config.get('schedule')}"
+    return " ".join([label, *config_differences(config, others or [])])
 
 
 def is_run_dir(path: Path) -> bool:

@@ -67,6 +67,27 @@ def test_plot_of_several_runs_writes_next_to_them(sweep, tmp_path, monkeypatch):
     assert not (tmp_path / "plots").exists()
 
 
+def test_configurations_apart_only_in_an_option_get_their_own_figures_and_labels(sweep, tmp_path, capsys):
+    """Two configurations of one algorithm and lambda that differ in an option (here sigma) are
+    named and titled by it, in plot and compare, with no hand editing."""
+    runs = tmp_path / "sigmas"
+    shutil.copytree(sweep / "openai-es" / "c", runs / "wide")
+    shutil.copytree(sweep / "openai-es" / "c", runs / "narrow")
+    config_file = runs / "narrow" / "config.json"
+    config = json.loads(config_file.read_text())
+    config["algo_options"] = {"sigma": 0.05}
+    config["algo_options_resolved"]["sigma"] = 0.05
+    config_file.write_text(json.dumps(config))
+    assert cli_main(["plot", str(runs), "--out", str(tmp_path / "figures")]) == 0
+    names = sorted(p.name for p in (tmp_path / "figures").glob("*-retention-pop.png"))
+    assert names == ["openai-es-red-green-red-reg0-sigma-0.05-retention-pop.png",
+                     "openai-es-red-green-red-reg0-sigma-0.1-retention-pop.png"]
+    assert cli_main(["compare", str(runs), "--out", str(tmp_path / "cmp")]) == 0
+    table = (tmp_path / "cmp" / "comparison.md").read_text()
+    assert "| openai-es reg=0 red-green-red sigma=0.05 | 1 |" in table
+    assert "| openai-es reg=0 red-green-red sigma=0.1 | 1 |" in table
+
+
 def test_plot_series_follow_metrics(sweep):
     """The curves drawn are metrics.csv's: the current task's best (NaN elsewhere), the retention
     where measured, stacked over the two seeds."""
