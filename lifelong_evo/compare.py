@@ -14,17 +14,20 @@ the seed, the speed settings and the output settings of ``RunConfig`` are one) a
 ``comparison-current[-<schedule>].png``  each configuration's current-performance curve (mean
                      over seeds, min-max band) on a shared drift schedule
 ``comparison-diagnostics[-<schedule>].png``  the same for each diagnostic the optimisers log
-                     (``Optimizer.diagnostics``: NEAT's genetic distance to the reference, its
-                     spread and the fraction of disabled connections), one panel each
+                     (``Optimizer.diagnostics``: the distance to the regulariser's reference and
+                     its spread; NEAT's fraction of disabled connections), one panel each
+``model_specific_lambda.md`` / ``.json``  where a configuration ran several lambdas (below)
 
-The markdown is printed too. ``compare_table(paths)`` returns ``(rows, markdown)`` for reuse.
+The markdown is printed too. ``compare_table(paths)`` returns ``(rows, markdown)`` for reuse;
+``write_comparison`` writes the tables (``sweep`` uses it for its own directory).
 
-Model-specific lambda ("m.s. reg", which ``sweep`` adds to its comparison): for each configuration
-without lambda and each seed, the lambda maximising ``C_top(phase 1) + R_top(task of phase 0 at
-the end of phase 1)`` (the top individual's current performance plus its retention of the first
-task at the end of the second task: the controller one would deploy, good at both; ties go to the
-smaller lambda), reported as a configuration of its own with the chosen lambda per seed
-(``select_model_specific``, ``model_specific_report``).
+Model-specific lambda ("m.s. reg"): for each configuration without lambda and each seed, the
+lambda maximising ``C_top(phase 1) + R_top(task of phase 0 at the end of phase 1)`` (the top
+individual's current performance plus its retention of the first task at the end of the second
+task: the controller one would deploy, good at both; ties go to the smaller lambda), reported as a
+configuration of its own with the chosen lambda per seed; beside it the one lambda for all seeds,
+the highest mean of the same criterion over the seeds (``select_model_specific``,
+``model_specific_report``).
 """
 from __future__ import annotations
 
@@ -42,7 +45,8 @@ import numpy as np
 from algorithms import REGISTRY
 
 from .plots import CONFIG_COLORS, band, draw_drifts, save, shade_phases, stack
-from .rundir import Run, configuration_of, describe_config, group_runs, is_run_dir, load_runs
+from .checkpoint import atomic_write_bytes
+from .rundir import Run, configuration_of, describe_config, group_runs, is_run_dir, load_runs, write_json
 from .schedule import parse_schedule
 
 RESAMPLES = 2000
@@ -375,13 +379,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "else comparison/)")
 
 
+def write_comparison(paths, out: Path) -> str:
+    """``compare_table`` of the runs at or under ``paths`` plus, where a configuration ran several
+    lambdas, the model-specific lambda rows: written to ``out``/comparison.md and comparison.csv,
+    the m.s. part also to model_specific_lambda.md and .json. Returns the markdown."""
+    rows, markdown = compare_table(paths)
+    runs = load_runs(paths, with_metrics=False)
+    names = [run.path.name for run in runs]
+    tags = names if len(set(names)) == len(names) else [str(run.path) for run in runs]
+    configs = [run.config for run in runs]
+    selections = select_model_specific([(run.config, run.summary, tag) for run, tag in zip(runs, tags)])
+    out.mkdir(parents=True, exist_ok=True)
+    if selections:
+        ms_rows, ms_markdown = model_specific_report(selections, dict(zip(tags, (r.summary for r in runs))), configs)
+        rows += ms_rows
+        markdown += "\n" + ms_markdown
+        atomic_write_bytes(out / "model_specific_lambda.md", (ms_markdown + "\n").encode())
+        write_json(out / "model_specific_lambda.json",
+                   [{"configuration": model_specific_label(s["config"], configs), "criterion": CRITERION,
+                     "choices": s["choices"],
+                     "one_lambda_for_all_seeds": None if s["shared"] is None else {
+                         "reg": s["shared"]["reg"],
+                         "mean_per_lambda": [{"reg": r, "mean": m} for r, m in s["shared"]["means"].items()]}}
+                    for s in selections])
+    atomic_write_bytes(out / "comparison.md", (markdown + "\n").encode())
+    write_csv(rows, out / "comparison.csv")
+    return markdown
+
+
 def main(args: argparse.Namespace) -> int:
-    rows, markdown = compare_table(args.paths)
     out = Path(args.out) if args.out else default_out(args.paths)
     figures = overlay_figures(args.paths, out)  # reads every metrics.csv before it writes: a bad one writes nothing
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "comparison.md").write_text(markdown + "\n")
-    write_csv(rows, out / "comparison.csv")
+    markdown = write_comparison(args.paths, out)
     print(markdown)
     print(f"wrote {out / 'comparison.md'}, {out / 'comparison.csv'}" + "".join(f", {f}" for f in figures))
     return 0

@@ -64,14 +64,14 @@ from envs import ConfigError
 
 from . import loop
 from .checkpoint import atomic_write_bytes
-from .compare import CRITERION, compare_table, model_specific_label, model_specific_report, select_model_specific, write_csv
+from .compare import write_comparison
 from .config import PRESETS, RunConfig, load_toml, resolve
 from .errors import UserError
 from .flags import NESTED, add_run_options
 from .options import flag, parse_value, plain, schema
 from .report import duration
 from .rerun_recorder import RerunRecorder
-from .rundir import RESOLVED, RunDir, RunDirError, load_run, read_json, write_json
+from .rundir import RESOLVED, RunDir, RunDirError, read_json, write_json
 
 RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in NESTED]
 """Run options with a flag of their own."""
@@ -467,30 +467,12 @@ def write_sweep_json(sweep_dir: Path, grid: Grid, ray_settings: dict[str, Any]) 
 # ---------------------------------------------------------------------------------------- comparison
 
 def aggregate(sweep_dir: Path, grid: Grid) -> str:
-    """``compare`` over the finished trials plus the m.s. reg rows: written to comparison.md and
-    comparison.csv (the m.s. part also to model_specific_lambda.md/.json); returns the markdown."""
+    """``compare``'s tables over the finished trials, the m.s. reg rows included, written into the
+    sweep directory (``compare.write_comparison``); returns the markdown."""
     done = [t for t in grid.trials if t.status == "done"]
     if not done:
         return "no finished trial: nothing to compare"
-    rows, markdown = compare_table([sweep_dir / t.name for t in done])
-    runs = [load_run(sweep_dir / t.name, with_metrics=False) for t in done]
-    configs = [run.config for run in runs]
-    selections = select_model_specific([(run.config, run.summary, run.path.name) for run in runs])
-    if selections:
-        ms_rows, ms_markdown = model_specific_report(selections, {run.path.name: run.summary for run in runs}, configs)
-        rows += ms_rows
-        markdown += "\n" + ms_markdown
-        (sweep_dir / "model_specific_lambda.md").write_text(ms_markdown + "\n")
-        write_json(sweep_dir / "model_specific_lambda.json",
-                   [{"configuration": model_specific_label(s["config"], configs), "criterion": CRITERION,
-                     "choices": s["choices"],
-                     "one_lambda_for_all_seeds": None if s["shared"] is None else {
-                         "reg": s["shared"]["reg"],
-                         "mean_per_lambda": [{"reg": r, "mean": m} for r, m in s["shared"]["means"].items()]}}
-                    for s in selections])
-    atomic_write_bytes(sweep_dir / "comparison.md", (markdown + "\n").encode())
-    write_csv(rows, sweep_dir / "comparison.csv")
-    return markdown
+    return write_comparison([sweep_dir / t.name for t in done], sweep_dir)
 
 
 # --------------------------------------------------------------------------------------------- driver

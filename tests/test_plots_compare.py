@@ -88,6 +88,21 @@ def test_configurations_apart_only_in_an_option_get_their_own_figures_and_labels
     assert "| openai-es reg=0 red-green-red sigma=0.1 | 1 |" in table
 
 
+def test_compare_adds_the_model_specific_lambda_where_lambda_varies(sweep, tmp_path):
+    runs = tmp_path / "lambdas"
+    shutil.copytree(sweep / "neat", runs / "reg1")
+    shutil.copytree(sweep / "neat", runs / "reg5")
+    for config_file in (runs / "reg5").glob("*/config.json"):
+        config_file.write_text(json.dumps({**json.loads(config_file.read_text()), "reg": 5.0}))
+    assert cli_main(["compare", str(runs), "--out", str(tmp_path / "cmp")]) == 0
+    (selection,) = json.loads((tmp_path / "cmp" / "model_specific_lambda.json").read_text())
+    # equal scores at both lambdas (the same runs): the smaller lambda, for each seed and for all
+    assert [c["reg"] for c in selection["choices"]] == [1.0, 1.0]
+    assert selection["one_lambda_for_all_seeds"]["reg"] == 1.0
+    assert [m["reg"] for m in selection["one_lambda_for_all_seeds"]["mean_per_lambda"]] == [1.0, 5.0]
+    assert "## Model-specific lambda" in (tmp_path / "cmp" / "comparison.md").read_text()
+
+
 def test_plot_series_follow_metrics(sweep):
     """The curves drawn are metrics.csv's: the current task's best (NaN elsewhere), the retention
     where measured, stacked over the two seeds."""
