@@ -170,7 +170,10 @@ def csv_rows(label: str, config: dict[str, Any], found: Estimates, reg: Any = No
 def compare_table(paths) -> tuple[list[dict[str, Any]], str]:
     """Rows (one per configuration and metric: see CSV_COLUMNS; ``values`` is the list over
     seeds) and the markdown report, for every run at or under ``paths``."""
-    runs = load_runs(paths, with_metrics=False)
+    return _table(load_runs(paths, with_metrics=False))
+
+
+def _table(runs: list[Run]) -> tuple[list[dict[str, Any]], str]:
     groups = _sorted_groups(group_runs(runs))
     configs = [g[0].config for g in groups]
     rows: list[dict[str, Any]] = []
@@ -383,8 +386,8 @@ def write_comparison(paths, out: Path) -> str:
     """``compare_table`` of the runs at or under ``paths`` plus, where a configuration ran several
     lambdas, the model-specific lambda rows: written to ``out``/comparison.md and comparison.csv,
     the m.s. part also to model_specific_lambda.md and .json. Returns the markdown."""
-    rows, markdown = compare_table(paths)
     runs = load_runs(paths, with_metrics=False)
+    rows, markdown = _table(runs)
     names = [run.path.name for run in runs]
     tags = names if len(set(names)) == len(names) else [str(run.path) for run in runs]
     configs = [run.config for run in runs]
