@@ -37,7 +37,7 @@ Speciation
     The genomes to place are a Python ``set`` of their keys, built from an iterator and visited
     (and ``pop``-ed) in the order the interpreter gives it; species are visited in the species
     set's order; among equal distances the first candidate in that order wins. 2.0 visits both
-    in ascending key order.
+    in ascending key order. (Both compute their distances in batches: ``neat_speciation``.)
 
 Shared by both versions and inherited unchanged: attribute initialisation and mutation (including
 the draws a zero rate still makes), the order of mutations, node and connection deletion,
@@ -62,7 +62,8 @@ from neat.genes import DefaultConnectionGene, DefaultNodeGene
 from neat.genome import DefaultGenomeConfig
 from neat.graphs import creates_cycle
 from neat.math_util import mean
-from neat.species import GenomeDistanceCache, Species
+
+from .neat_speciation import SpeciesSet
 
 Genetics = Literal["0.92", "2.0"]
 GENETICS: tuple[str, ...] = get_args(Genetics)
@@ -81,6 +82,8 @@ class Neat092NodeGene(DefaultNodeGene):
     """A node gene without 2.0's ``time_constant``."""
 
     _gene_attributes = [a for a in DefaultNodeGene._gene_attributes if a.name != "time_constant"]
+    distance_terms = ("bias", "response")
+    """The attributes whose absolute differences ``distance`` adds, in order (``neat_speciation``)."""
 
     def distance(self, other, config):
         d = abs(self.bias - other.bias) + abs(self.response - other.response)
@@ -228,45 +231,20 @@ class Neat092Reproduction(neat.DefaultReproduction):
         return population
 
 
-class Neat092SpeciesSet(neat.DefaultSpeciesSet):
+class Neat092SpeciesSet(SpeciesSet):
     """Speciation visiting genomes in ``set`` order and species in the species set's order."""
 
-    def speciate(self, config, population, generation):
-        threshold = self.species_set_config.compatibility_threshold
-        # the argument order of each distance matters: the cache keeps the first one computed,
-        # and a.distance(b) may differ from b.distance(a) in the last bit
-        distance = GenomeDistanceCache(config.genome_config)
+    def _unplaced(self, population: dict) -> set:
         # from an iterator, as 0.92 builds it: set(dict) presizes the table, and the table size
         # changes the order in which a set visits its keys
-        unplaced = set(iter(population))
-        representatives = {}
-        members = {}
-        for sid, s in self.species.items():
-            representative = min(unplaced, key=lambda key: distance(s.representative, population[key]))
-            representatives[sid] = representative
-            members[sid] = [representative]
-            unplaced.remove(representative)
-        while unplaced:
-            key = unplaced.pop()
-            genome = population[key]
-            candidates = [(d, sid) for d, sid in ((distance(population[rid], genome), sid)
-                                                  for sid, rid in representatives.items())
-                          if d < threshold]
-            if candidates:
-                members[min(candidates, key=lambda c: c[0])[1]].append(key)
-            else:
-                sid = next(self.indexer)
-                representatives[sid] = key
-                members[sid] = [key]
+        return set(iter(population))
 
-        self.genome_to_species = {}
-        for sid, representative in representatives.items():
-            s = self.species.get(sid)
-            if s is None:
-                s = self.species[sid] = Species(sid, generation)
-            for key in members[sid]:
-                self.genome_to_species[key] = sid
-            s.update(population[representative], {key: population[key] for key in members[sid]})
+    @staticmethod
+    def _take(unplaced: set) -> int:
+        return unplaced.pop()
+
+    def _species_order(self) -> list[int]:
+        return list(self.species)
 
 
 __all__ = ["Genetics", "GENETICS", "DEFAULT_GENETICS", "check_genetics", "Neat092NodeGene", "Neat092ConnectionGene",

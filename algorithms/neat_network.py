@@ -65,6 +65,7 @@ from .neat_genetics import (
     Neat092Stagnation,
     check_genetics,
 )
+from .neat_speciation import SpeciesSet
 
 UnconnectedOutputs = Literal["zero", "bias"]
 UNCONNECTED_OUTPUTS_MODES: tuple[str, ...] = ("zero", "bias")
@@ -122,10 +123,11 @@ _SECTIONS = ("DefaultGenome", "DefaultReproduction", "DefaultSpeciesSet", "Defau
 
 def neat_components(genetics: str = DEFAULT_GENETICS) -> tuple[type, type, type, type]:
     """The genome, reproduction, species-set and stagnation classes of ``genetics`` (see
-    ``algorithms.neat_genetics``): neat-python 0.92's, or 2.0's own with the spawn-count fix."""
+    ``algorithms.neat_genetics``): neat-python 0.92's, or 2.0's own with the spawn-count fix and
+    batched speciation distances (``algorithms.neat_speciation``)."""
     if check_genetics(genetics) == "0.92":
         return Neat092Genome, Neat092Reproduction, Neat092SpeciesSet, Neat092Stagnation
-    return neat.DefaultGenome, Reproduction, neat.DefaultSpeciesSet, neat.DefaultStagnation
+    return neat.DefaultGenome, Reproduction, SpeciesSet, neat.DefaultStagnation
 
 
 def build_neat_config(num_inputs: int, pop_size: int = 300,

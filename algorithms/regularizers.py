@@ -42,8 +42,7 @@ a mean; with ``w = 1`` it is the paper's genetic-distance penalty for a fixed to
     along; the spread term marks parameters at a peak (there the slope vanishes but widening the
     distribution along ``i`` costs fitness, ``b_i < 0``), which is what EWC's Fisher diagonal, an
     approximation of the loss curvature at the old optimum, measures. (The squared mean gradient
-    alone vanishes at an optimum; on a quadratic with 5 relevant of 50 parameters this ``w`` is
-    20-30x larger on the relevant ones, at and away from the optimum.)
+    alone vanishes at an optimum.)
 
   If an importance estimate is degenerate (all zero, or not finite), ``w = 1`` is used.
 """
