@@ -20,7 +20,7 @@ class RunConfig:
     field's docstring is its line in ``--help``."""
 
     algo: str = "neat"
-    """Optimiser from the registry: neat, cmaes, sep-cmaes, openai-es, pgpe, snes, or your own."""
+    """Optimiser: a name in algorithms.REGISTRY, yours included (python -m lifelong_evo options lists them)."""
     reg: float = 0.0
     """Regularisation strength lambda (0 = off): genetic distance for NEAT, L2/EWC for the ES."""
     schedule: str = "red-green-red"
@@ -46,8 +46,8 @@ class RunConfig:
     not the machine's, because the count can change the rounding of a run's numbers; 1 on a GPU,
     where threads share the one device (docs/performance.md)."""
     compile: bool = True
-    """torch.compile the environment's step: about 2.5x faster steps after 20-60 s of compiling per
-    batch shape; needs a C++ compiler (docs/performance.md)."""
+    """torch.compile the environment's step: faster steps after a compile per batch shape; needs a
+    C++ compiler (docs/performance.md)."""
     record: bool = True
     """Write recording.rrd (Rerun)."""
     episodes_every: int = 0
