@@ -117,8 +117,29 @@ class RunDir:
         return RunConfig.from_dict({k: v for k, v in values.items() if k not in RESOLVED_KEYS},
                                    str(self.config))
 
+    def differing_settings(self, config: RunConfig) -> list[str]:
+        """The settings that change a run's numbers (``RunConfig.outcome_settings``) in which
+        ``config`` differs from the one this run was created with; compared resolved where
+        config.json says how the run resolved them, so a default stated in one and left out in
+        the other is the same setting."""
+        stored = read_json(self.config)
+        mine = RunConfig.outcome_settings(config.to_dict())
+        theirs = dict(stored)
+        resolved = {"env": config.env_config().to_dict(), "algo_options": config.algo_options_resolved()}
+        for given, written in RESOLVED:
+            if written in stored and given in mine:
+                mine[given], theirs[given] = json.loads(json.dumps(resolved[given])), stored[written]
+        return sorted(k for k in mine if theirs.get(k) != mine[k])
+
     def write_summary(self, summary: dict[str, Any]) -> None:
         write_json(self.summary, summary)
+
+    def read_summary(self) -> dict[str, Any] | None:
+        """summary.json, or None where there is none or it cannot be read (a run killed early)."""
+        try:
+            return read_json(self.summary) if self.summary.exists() else None
+        except RunDirError:
+            return None
 
     def write_top_controller(self, phase_index: int, task: str, exported: dict[str, Any]) -> None:
         """The top individual at the end of phase ``phase_index``, also as the latest (final-top.json)."""

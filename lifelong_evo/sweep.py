@@ -71,7 +71,7 @@ from .flags import NESTED, add_run_options
 from .options import flag, parse_value, plain, schema
 from .report import duration
 from .rerun_recorder import RerunRecorder
-from .rundir import RESOLVED, RunDir, RunDirError, read_json, write_json
+from .rundir import RunDir, RunDirError, write_json
 
 RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in NESTED]
 """Run options with a flag of their own."""
@@ -402,9 +402,11 @@ def run_trial(config_values: dict[str, Any], path: str, overwrite: bool) -> dict
     never raises: an error comes back as ``{"status": "failed", "error": one line}``."""
     started = time.monotonic()
     try:
-        config = RunConfig.from_dict(config_values)
         run_dir = RunDir(path)
         resume = not overwrite and run_dir.config.exists()
+        # a resumed trial continues with the settings it was created with, as run --resume does
+        # (trial_state found them equal, perhaps with a default stated in one and left out in the other)
+        config = run_dir.read_config() if resume else RunConfig.from_dict(config_values)
         recorder = RerunRecorder.for_run(run_dir, config, resume=resume) if config.record else None
         summary = loop.run(config, run_dir, resume=resume, overwrite=overwrite, recorder=recorder, progress="off")
         return {"status": "done", "error": "", "wall_time_s": summary["wall_time_s"]}
@@ -419,31 +421,17 @@ def is_complete(summary: dict[str, Any] | None, config: RunConfig) -> bool:
 
 def trial_state(path: Path, config: RunConfig) -> tuple[str, str]:
     """``("done", "")``, ``("resume", "")``, ``("new", "")`` or ``("failed", why)`` for a trial directory."""
-    config_file = path / "config.json"
-    if not config_file.exists():
+    run_dir = RunDir(path)
+    if not run_dir.config.exists():
         return "new", ""
     try:
-        stored = read_json(config_file)
+        different = run_dir.differing_settings(config)
     except RunDirError as error:
         return "failed", str(error)
-    mine = RunConfig.outcome_settings(config.to_dict())
-    theirs = dict(stored)
-    # compared as resolved where the trial directory says how it resolved them: a default stated
-    # in one and left out in the other is the same setting
-    resolved = {"env": config.env_config().to_dict(), "algo_options": config.algo_options_resolved()}
-    for given, written in RESOLVED:
-        if written in stored and given in mine:
-            mine[given], theirs[given] = json.loads(json.dumps(resolved[given])), stored[written]
-    different = sorted(k for k in mine if theirs.get(k) != mine[k])
     if different:
         return "failed", (f"{path} was run with other settings ({', '.join(different)} differ): "
                           "pass --overwrite to restart it, or use another --name")
-    summary_file = path / "summary.json"
-    try:
-        summary = read_json(summary_file) if summary_file.exists() else None
-    except RunDirError:
-        summary = None
-    return ("done", "") if is_complete(summary, config) else ("resume", "")
+    return ("done", "") if is_complete(run_dir.read_summary(), config) else ("resume", "")
 
 
 def write_trials_csv(sweep_dir: Path, grid: Grid) -> None:
@@ -615,7 +603,7 @@ def main(args: argparse.Namespace) -> int:
         state, why = ("new", "") if args.overwrite else trial_state(sweep_dir / trial.name, trial.config)
         if state == "done":
             trial.status = "done"
-            trial.wall_time_s = read_json(sweep_dir / trial.name / "summary.json")["wall_time_s"]
+            trial.wall_time_s = RunDir(sweep_dir / trial.name).read_summary()["wall_time_s"]
         elif state == "failed":
             trial.status, trial.error = "failed", why
         else:

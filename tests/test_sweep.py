@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -13,7 +14,7 @@ import pytest
 from envs import ForagingConfig
 from lifelong_evo.cli import build_parser, main
 from lifelong_evo.compare import model_specific_report, select_model_specific, selection_score
-from lifelong_evo.sweep import build_grid, trial_state
+from lifelong_evo.sweep import build_grid, run_trial, trial_state
 
 ray = pytest.importorskip("ray")
 
@@ -95,6 +96,23 @@ def test_second_invocation_skips_finished_trials(smoke_sweep, capsys):
     trial = build_grid(build_parser().parse_args([*stated[:-1], "n_agents=4"])).trials[0]
     state, why = trial_state(sweep_dir / trial.name, trial.config)
     assert state == "failed" and "env differ" in why
+
+
+def test_an_unfinished_trial_resumes_with_the_settings_it_was_created_with(smoke_sweep, tmp_path, capsys):
+    """A trial whose settings equal the directory's only once resolved (a default stated in one,
+    left out in the other) resumes, as run --resume would, and keeps the stored settings."""
+    sweep_dir, argv = smoke_sweep
+    copy = tmp_path / "neat-seed2"
+    shutil.copytree(sweep_dir / "neat-seed2", copy)
+    stored = (copy / "config.json").read_text()
+    (copy / "summary.json").unlink()
+    trial = build_grid(build_parser().parse_args([*argv, "--env", f"n_agents={ForagingConfig().n_agents}"])).trials[0]
+    assert trial.name == "neat-seed2" and trial.config.env == {"duration": 60, "n_agents": 5}
+    assert trial_state(copy, trial.config) == ("resume", "")
+    result = run_trial(trial.config.to_dict(), str(copy), overwrite=False)
+    assert result["status"] == "done", result
+    assert (copy / "config.json").read_text() == stored
+    assert trial_state(copy, trial.config) == ("done", "")
 
 
 def test_failed_trial_is_reported_and_the_others_finish(local_ray, tmp_path, capsys):
