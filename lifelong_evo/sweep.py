@@ -476,21 +476,20 @@ STATUS_EVERY_S = 60.0
 """A status line at least this often while trials run."""
 
 
-def _start_ray(args: argparse.Namespace):
+def _start_ray(args: argparse.Namespace, address: str | None):
+    """Ray for the trials: the cluster at ``address`` (checked by ``_check_cluster``), else a local one."""
     import ray
 
     if ray.is_initialized():
         return ray, False
-    # Ray's INFO lines and the token notice are for Ray's users; the sweep says what it connected to
-    logging.getLogger("ray._private.authentication.authentication_token_setup").setLevel(logging.ERROR)
+    _quiet_token_notice()
     quiet = {"log_to_driver": False, "logging_level": logging.WARNING}
-    if args.address:
+    if address:
         import algorithms
         import envs
 
         import lifelong_evo
 
-        address = _check_cluster(args.address)
         modules = [str(Path(m.__file__).parent) for m in (lifelong_evo, algorithms, envs)]
         try:
             ray.init(address=address, runtime_env={"py_modules": modules, "excludes": ["__pycache__"]}, **quiet)
@@ -542,6 +541,11 @@ def _native_stderr_silenced():
         os.close(saved)
 
 
+def _quiet_token_notice() -> None:
+    # Ray's INFO lines and the token notice are for Ray's users; the sweep says what it connected to
+    logging.getLogger("ray._private.authentication.authentication_token_setup").setLevel(logging.ERROR)
+
+
 def _check_cluster(given: str) -> str:
     """The HOST:PORT of the cluster ``--address`` names, once it answers and accepts this
     machine's token; otherwise UserError with the fix, within seconds (Ray itself would retry
@@ -551,7 +555,8 @@ def _check_cluster(given: str) -> str:
     from ray._raylet import AuthenticationMode, AuthenticationTokenLoader, GcsClient, get_authentication_mode
     from ray.exceptions import AuthenticationError, RpcError
 
-    start_hint = "start it with `ray start --head --port=6379` (see the README), or fix --address"
+    _quiet_token_notice()
+    start_hint = "start it with `ray start --head --port=6379` (docs/usage.md, On a cluster), or fix --address"
     try:
         address = canonicalize_bootstrap_address(given)
     except (ConnectionError, ValueError) as error:
@@ -626,6 +631,8 @@ def main(args: argparse.Namespace) -> int:
         for trial in to_run:
             _print(f"would run {trial.name}")
         return 0
+    # a cluster that cannot be joined is one error line before anything is written
+    address = _check_cluster(args.address) if args.address and to_run else None
     sweep_dir.mkdir(parents=True, exist_ok=True)
     ray_settings = {"address": args.address or "local", "workers": args.workers,
                     "gpus_per_trial": args.gpus_per_trial, "retries": args.retries}
@@ -634,7 +641,7 @@ def main(args: argparse.Namespace) -> int:
     interrupted = False
     try:
         if to_run:
-            _run_trials(args, grid, to_run, sweep_dir)
+            _run_trials(args, grid, to_run, sweep_dir, address)
     except KeyboardInterrupt:  # Ctrl-C: running trials were cancelled; their checkpoints stay
         interrupted = True
     write_trials_csv(sweep_dir, grid)
@@ -651,10 +658,11 @@ def main(args: argparse.Namespace) -> int:
     return 1 if counts["failed"] else 0
 
 
-def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep_dir: Path) -> None:
+def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep_dir: Path,
+                address: str | None) -> None:
     """Run ``to_run`` on Ray, recording each result as it comes; on Ctrl-C, cancel the running
     trials (killing their workers) and raise KeyboardInterrupt."""
-    ray, started = _start_ray(args)
+    ray, started = _start_ray(args, address)
     in_flight: dict[Any, Trial] = {}
     messages = contextlib.ExitStack()
     try:

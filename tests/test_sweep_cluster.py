@@ -93,8 +93,9 @@ def test_a_machine_without_the_token_is_told_how_to_get_it(cluster, tmp_path):
     address, env = cluster
     empty = tmp_path / "home"
     empty.mkdir()
-    done, took = _sweep({**env, "HOME": str(empty)}, *TRIAL, "--address", address, "--out", str(tmp_path))
-    assert done.returncode == 2
+    out = tmp_path / "sweeps"
+    done, took = _sweep({**env, "HOME": str(empty)}, *TRIAL, "--address", address, "--out", str(out))
+    assert done.returncode == 2 and not out.exists()
     assert done.stderr.startswith(f"error: the Ray cluster at {address} requires its token and this machine has "
                                   "none: copy the head node's ~/.ray/auth_token") and done.stderr.count("\n") == 1
     assert took < 15, "Ray's own client retries for 20 s before it gives up"
@@ -105,8 +106,10 @@ def test_a_machine_without_the_token_is_told_how_to_get_it(cluster, tmp_path):
 
 def test_nothing_listening_is_one_line(tmp_path):
     port = _free_port()
-    done, took = _sweep(_env(tmp_path), *TRIAL, "--address", f"127.0.0.1:{port}", "--out", str(tmp_path))
+    out = tmp_path / "sweeps"
+    done, took = _sweep(_env(tmp_path), *TRIAL, "--address", f"127.0.0.1:{port}", "--out", str(out))
     assert done.returncode == 2
     assert done.stderr == (f"error: no Ray cluster answers at 127.0.0.1:{port} (Connection refused): start it "
-                           "with `ray start --head --port=6379` (see the README), or fix --address\n")
+                           "with `ray start --head --port=6379` (docs/usage.md, On a cluster), or fix --address\n")
     assert took < 15, "Ray's own client waits 40 s for an address where nothing listens"
+    assert not out.exists(), "the sweep wrote before it knew it could run"
