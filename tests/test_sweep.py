@@ -291,3 +291,23 @@ def test_one_grid_for_algorithms_whose_options_differ(tmp_path, capsys):
         assert main(["sweep", "--config", str(sweep_file), "--out", str(tmp_path), "--dry-run"]) == 2
         err = capsys.readouterr().err
         assert message in err and err.count("\n") == 1, err
+
+
+def test_rays_driver_messages_go_to_the_sweeps_log(tmp_path, capsys):
+    """The error messages Ray's driver prints from its own thread (a dead node's state dump among
+    them) are looked up by name in Ray's worker module on every message: inside a sweep they land
+    in ray.log, and nothing reaches the sweep's output."""
+    from ray._private import worker
+
+    from lifelong_evo.sweep import RAY_LOG, _ray_messages_to
+
+    original = worker.print_to_stdstream
+    with _ray_messages_to(tmp_path / RAY_LOG):
+        worker.print_to_stdstream({"lines": ["[state-dump] NodeManager:", "[state-dump] Node ID: x"],
+                                   "pid": "raylet", "is_err": False}, ignore_prefix=False)
+    assert worker.print_to_stdstream is original
+    logged = (tmp_path / RAY_LOG).read_text().splitlines()
+    assert [line.split(" ", 2)[2] for line in logged] == \
+        ["(raylet) [state-dump] NodeManager:", "(raylet) [state-dump] Node ID: x"]
+    printed = capsys.readouterr()
+    assert "state-dump" not in printed.out + printed.err
