@@ -311,3 +311,12 @@ def test_rays_driver_messages_go_to_the_sweeps_log(tmp_path, capsys):
         ["(raylet) [state-dump] NodeManager:", "(raylet) [state-dump] Node ID: x"]
     printed = capsys.readouterr()
     assert "state-dump" not in printed.out + printed.err
+
+
+def test_a_trial_sharing_the_machine_repeats_a_run_alone(smoke_sweep, tmp_path):
+    """Trials run side by side (here four on two cores; on a GPU machine, several on one device
+    with --gpus-per-trial) and each gives the numbers it gives alone with the same settings."""
+    sweep_dir, _argv = smoke_sweep
+    assert main(["--algo", "neat", "--seed", "2", "--generations", "2", *SMOKE, "--threads", "1",
+                 "--out", str(tmp_path), "--name", "alone", "--quiet"]) == 0
+    assert (tmp_path / "alone/metrics.csv").read_bytes() == (sweep_dir / "neat-seed2/metrics.csv").read_bytes()
