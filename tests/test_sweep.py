@@ -14,7 +14,8 @@ import pytest
 from envs import ForagingConfig
 from lifelong_evo.cli import build_parser, main
 from lifelong_evo.compare import model_specific_report, select_model_specific, selection_score
-from lifelong_evo.sweep import build_grid, run_trial, trial_state
+from lifelong_evo.grid import build_grid
+from lifelong_evo.sweep import run_trial, trial_state
 
 ray = pytest.importorskip("ray")
 

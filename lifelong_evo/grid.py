@@ -1,0 +1,311 @@
+"""The grid of a sweep: its axes and fixed values, from the run's own flags (comma-separated
+values) and a sweep file's ``[grid]`` and ``[grid.<algo>]`` tables, expanded into trials, each a
+``RunConfig`` named from its axes (``neat-reg5-seed13``). ``lifelong_evo.sweep`` runs them."""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import itertools
+import json
+import re
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from envs import ConfigError
+
+from .config import PRESETS, RunConfig, load_toml, resolve
+from .errors import UserError
+from .flags import NESTED
+from .options import flag, parse_value, schema
+
+RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in NESTED]
+"""Run options with a flag of their own."""
+_TYPES = schema(RunConfig)
+_LABELS = {"reg": "reg", "seed": "seed", "population": "pop", "generations": "gen", "evals": "evals",
+           "retention_every": "ret", "checkpoint_every": "ckpt", "threads": "threads", "eval_threads": "evalthreads",
+           "episodes_every": "ep"}
+@dataclass
+class Trial:
+    name: str
+    values: dict[str, Any]
+    """This trial's value of every axis (keys like ``reg`` or ``algo_options.sigma``)."""
+    config: RunConfig
+    status: str = "pending"
+    error: str = ""
+    wall_time_s: float | None = None
+
+
+@dataclass
+class Grid:
+    axes: dict[str, list[Any]]
+    fixed: dict[str, Any]
+    preset: str
+    name: str | None = None
+    by_algo: dict[str, tuple[dict[str, list[Any]], dict[str, Any]]] = field(default_factory=dict)
+    """Per algorithm: axes and fixed values for its trials only (a sweep file's ``[grid.<algo>]``),
+    so that algorithms whose options or lambdas differ share one grid."""
+    trials: list[Trial] = field(default_factory=list)
+
+    @property
+    def columns(self) -> list[str]:
+        """Every axis, shared or one algorithm's, variants' keys included, in trial-name order."""
+        keys: dict[str, None] = {}
+        for axes in (self.axes, *(axes for axes, _ in self.by_algo.values())):
+            keys.update(dict.fromkeys(k for k in axes if k != VARIANTS))
+            for variant in axes.get(VARIANTS, []):
+                keys.update(dict.fromkeys(variant))
+        return sorted(keys, key=_axis_rank)
+
+
+def _coerce(key: str, value: Any, where: str) -> Any:
+    """A sweep file's value of run option ``key``, typed as the run's flag types it."""
+    try:
+        return parse_value(_TYPES[key], value, flag(key))
+    except ConfigError as error:
+        raise UserError(f"{error} ({where})") from None
+
+
+def _split_assignment(item: str, what: str) -> tuple[str, list[str]]:
+    """``KEY=V1,V2`` -> (KEY, ["V1", "V2"]), split at the commas outside brackets (``[16],[32,32]``
+    is two lists); the values stay text, typed when each trial's configuration is validated."""
+    key, sep, text = item.partition("=")
+    if not sep or not key.strip():
+        raise UserError(f"{what} {item!r} is not KEY=VALUE (or KEY=V1,V2 for an axis)")
+    pieces, depth, start = [], 0, 0
+    for i, char in enumerate(text):
+        depth += {"[": 1, "]": -1}.get(char, 0)
+        if char == "," and depth == 0:
+            pieces.append(text[start:i])
+            start = i + 1
+    return key.strip(), [*pieces, text[start:]]
+
+
+def _file_layer(path: str):
+    """A sweep TOML: run options (fixed), a [grid] table of lists (axes) with optional
+    ``[grid.<algo>]`` tables (axes and fixed values for that algorithm's trials only), each table
+    with optional ``variants`` (sets of values given together: one axis), and preset/name.
+    Returns (axes, fixed, by_algo, preset, name)."""
+    from algorithms import REGISTRY
+
+    values = load_toml(path)
+    allowed = set(RUN_FIELDS) | set(NESTED) | {"grid", "preset", "name"}
+    unknown = sorted(set(values) - allowed)
+    if unknown:
+        raise UserError(f"unknown key(s) {unknown} in {path}: use run options, [env], [algo_options], "
+                       "[grid], preset and name")
+    axes: dict[str, list[Any]] = {}
+    fixed: dict[str, Any] = {}
+    by_algo: dict[str, tuple[dict[str, list[Any]], dict[str, Any]]] = {}
+
+    def put(key: str, value: Any, in_grid: bool, axes: dict, fixed: dict) -> None:
+        name = key.split(".")[-1]
+        if in_grid:
+            listed = value if isinstance(value, list) else [value]
+            if not listed:
+                raise UserError(f"[grid] {key} in {path} is an empty list: give at least one value")
+            typed = [_coerce(name, v, f"in {path}") if "." not in key else v for v in listed]
+            if len(typed) > 1:
+                axes[key] = typed
+            else:
+                fixed[key] = typed[0]
+        else:
+            fixed[key] = _coerce(name, value, f"in {path}") if "." not in key else value
+
+    def variants(listed: Any, where: str) -> list[dict[str, Any]]:
+        """``variants = [{reg = 0}, {reg = 10, algo_options = {importance = "l2"}}]``: each table
+        a set of values given together, flattened to keys like ``algo_options.importance``."""
+        if not isinstance(listed, list) or not listed or not all(isinstance(v, dict) and v for v in listed):
+            raise UserError(f"{where} variants in {path} must be a list of tables, each giving values "
+                           "together, e.g. variants = [{reg = 0}, {reg = 10, algo_options = {importance = \"l2\"}}]")
+        flat = []
+        for variant in listed:
+            values: dict[str, Any] = {}
+            for key, value in variant.items():
+                if key in NESTED and isinstance(value, dict):
+                    values.update((f"{key}.{sub}", subvalue) for sub, subvalue in value.items())
+                elif key in RUN_FIELDS and key != "algo":
+                    values[key] = _coerce(key, value, f"in {where} variants of {path}")
+                else:
+                    raise UserError(f"unknown key {key!r} in {where} variants of {path}: use run options "
+                                   "(not algo), env or algo_options")
+            flat.append(values)
+        return flat
+
+    def grid_table(table: dict, axes: dict, fixed: dict, algo: str | None) -> None:
+        where = f"[grid.{algo}]" if algo else "[grid]"
+        for gkey, gvalue in table.items():
+            if gkey == VARIANTS:
+                axes[VARIANTS] = variants(gvalue, where)
+            elif gkey in NESTED and isinstance(gvalue, dict):
+                for sub, subvalue in gvalue.items():
+                    put(f"{gkey}.{sub}", subvalue, True, axes, fixed)
+            elif gkey in RUN_FIELDS and not (algo and gkey == "algo"):
+                put(gkey, gvalue, True, axes, fixed)
+            elif algo is None and gkey in REGISTRY and isinstance(gvalue, dict):
+                by_algo[gkey] = ({}, {})
+                grid_table(gvalue, *by_algo[gkey], gkey)
+            else:
+                raise UserError(f"unknown {where} key {gkey!r} in {path}: use run options, "
+                                f"{where[:-1]}.env], {where[:-1]}.algo_options], variants"
+                                + ("" if algo else ", or [grid.<algo>] for one algorithm's trials"))
+        given_twice = sorted(set(axes) & set().union(*axes.get(VARIANTS, [])))
+        if given_twice:
+            raise UserError(f"{', '.join(given_twice)} in {path} is an axis of {where} and set by its variants too: "
+                            "give it in one")
+
+    for key, value in values.items():
+        if key in ("preset", "name"):
+            continue
+        if key == "grid":
+            if not isinstance(value, dict):
+                raise UserError(f"grid in {path} must be a table: write [grid] with lists, e.g. seed = [1, 2]")
+            grid_table(value, axes, fixed, None)
+        elif key in NESTED:
+            if not isinstance(value, dict):
+                raise UserError(f"{key} in {path} must be a table: write [{key}]")
+            for sub, subvalue in value.items():
+                put(f"{key}.{sub}", subvalue, False, axes, fixed)
+        else:
+            put(key, value, False, axes, fixed)
+    return axes, fixed, by_algo, values.get("preset"), values.get("name")
+
+
+_FIRST_AXES = ["algo", "schedule", "reg"]  # as in RunConfig.default_name
+VARIANTS = "variants"
+"""The axis of a grid table whose values are sets of values given together (dicts by key)."""
+
+
+def _expand(values: dict[str, Any]) -> dict[str, Any]:
+    """One trial's axis values with its variant's values in place of the variant."""
+    variant = values.get(VARIANTS, {})
+    return {**{k: v for k, v in values.items() if k != VARIANTS}, **variant}
+
+
+def _axis_rank(key: str) -> tuple[int, str]:
+    """Trial names list the axes in this order: algo, schedule, reg, the other run options,
+    environment and optimiser options, then the seed."""
+    if key in _FIRST_AXES:
+        return (0, f"{_FIRST_AXES.index(key)}")
+    if key == "seed":
+        return (4, key)
+    if key in RUN_FIELDS:
+        return (1, f"{RUN_FIELDS.index(key):03d}")
+    return (2, key)
+
+
+def build_grid(args: argparse.Namespace) -> Grid:
+    """Axes and fixed values from the sweep file and the flags (flags win, key by key), and the
+    trials: every combination, each resolved and validated like a ``run`` (preset < file < flags)."""
+    axes, fixed, by_algo, preset, name = _file_layer(args.config) if args.config else ({}, {}, {}, None, None)
+    if args.config and name is None:
+        name = Path(args.config).stem
+
+    def put(key: str, values: list[Any]) -> None:
+        for table in (axes, fixed, *(t for tables in by_algo.values() for t in tables)):  # a flag wins everywhere
+            table.pop(key, None)
+            if VARIANTS in table:  # variants that differed only in this key are one now
+                kept = [{k: v for k, v in variant.items() if k != key} for variant in table[VARIANTS]]
+                table[VARIANTS] = [v for i, v in enumerate(kept) if v not in kept[:i]]
+        if len(values) != len(set(map(repr, values))):
+            raise UserError(f"{key} lists a value twice ({values}): give each value once")
+        if len(values) > 1:
+            axes[key] = values
+        else:
+            fixed[key] = values[0]
+
+    for key in RUN_FIELDS:
+        value = getattr(args, key, None)  # a list of typed values (flags.add_run_options), a boolean flag's value
+        if value is not None:
+            put(key, value if isinstance(value, list) else [value])
+    for nested, setter in NESTED.items():
+        for item in getattr(args, setter[2:]):
+            sub, values = _split_assignment(item, setter)
+            put(f"{nested}.{sub}", values)
+    preset = args.preset or preset or "paper"
+    if preset not in PRESETS:
+        raise UserError(f"unknown preset {preset!r}: choose one of {', '.join(PRESETS)}")
+    if args.gpus_per_trial < 0:
+        raise UserError(f"--gpus-per-trial must be >= 0, got {args.gpus_per_trial}")
+    if args.gpus_per_trial > 0:
+        devices = axes.get("device", [fixed.get("device", "cuda")])
+        if any(not str(d).startswith("cuda") for d in devices):
+            raise UserError("--gpus-per-trial runs trials on cuda: drop --device or set it to cuda")
+        if "device" not in axes:
+            fixed["device"] = "cuda"
+    algos = axes.get("algo", [fixed.get("algo", RunConfig().algo)])
+    if getattr(args, "algo", None) is not None:  # --algo picks some of the file's algorithms: drop the others' tables
+        by_algo = {algo: tables for algo, tables in by_algo.items() if algo in algos}
+    for algo, (algo_axes, _) in by_algo.items():
+        if algo not in algos:
+            raise UserError(f"[grid.{algo}] is for {algo}'s trials, but no trial runs {algo}: add it to algo")
+        shared = sorted((set(algo_axes) | set().union(*algo_axes.get(VARIANTS, [])))
+                        & (set(axes) | set().union(*axes.get(VARIANTS, []))))
+        if shared:
+            raise UserError(f"{', '.join(shared)} is an axis of every trial and of [grid.{algo}] too: give it in one")
+    axes = {k: axes[k] for k in sorted(axes, key=_axis_rank)}
+    grid = Grid(axes, fixed, preset, args.name or name, by_algo)
+    for combo in itertools.product(*axes.values()):
+        common = dict(zip(axes, combo))
+        algo_axes, algo_fixed = by_algo.get(common.get("algo", fixed.get("algo", RunConfig().algo)), ({}, {}))
+        for algo_combo in itertools.product(*algo_axes.values()):
+            values = _expand({**_expand(common), **dict(zip(algo_axes, algo_combo))})
+            values = {k: values[k] for k in sorted(values, key=_axis_rank)}
+            # a cluster's machines, not this one, must have the device and compiler its trials need
+            config = _resolve(preset, {**fixed, **algo_fixed, **values}, values, machine=args.address is None)
+            values = {key: _typed_value(config, key) for key in values}
+            grid.trials.append(Trial(trial_name(values, config), values, config))
+    seen: dict[str, Trial] = {}
+    for trial in grid.trials:
+        if trial.name in seen:
+            raise UserError(f"trials {seen[trial.name].values} and {trial.values} are both named {trial.name!r}: "
+                           "give the axis values distinct spellings")
+        seen[trial.name] = trial
+    return grid
+
+
+def _resolve(preset: str, values: dict[str, Any], axis_values: dict[str, Any], machine: bool) -> RunConfig:
+    """One trial's RunConfig (``config.resolve``); ``values`` as the flags and the file gave them."""
+    overrides: dict[str, Any] = {}
+    for key, value in values.items():
+        nested, _, sub = key.rpartition(".")
+        if nested:
+            overrides.setdefault(nested, {})[sub] = value
+        else:
+            overrides[key] = value
+    try:
+        return resolve(preset, {}, overrides, machine=machine)
+    except ConfigError as error:
+        where = f" (trial {axis_values})" if axis_values else ""
+        raise UserError(f"{error}{where}") from None
+
+
+def _typed_value(config: RunConfig, key: str) -> Any:
+    """The value of ``key`` (``reg``, ``algo_options.sigma``) in a validated configuration."""
+    nested, _, sub = key.rpartition(".")
+    return getattr(config, nested)[sub] if nested else getattr(config, key)
+
+
+def _slug(value: Any) -> str:
+    text = f"{value:g}" if isinstance(value, float) else str(value)
+    return re.sub(r"[^A-Za-z0-9.]+", "-", text).strip("-")
+
+
+def trial_name(values: dict[str, Any], config: RunConfig) -> str:
+    """From the varying axes, e.g. ``neat-reg5-seed13``; a grid without axes: ``RunConfig.default_name``."""
+    if not values:
+        return config.default_name()
+    parts = []
+    for key, value in values.items():
+        if key in ("algo", "schedule", "device"):
+            parts.append(_slug(value))
+        elif key == "record":
+            parts.append("rec" if value else "norec")
+        else:
+            parts.append(_LABELS.get(key, key.split(".")[-1]) + _slug(value))
+    return "-".join(parts)
+
+
+def default_sweep_name(grid: Grid) -> str:
+    blob = json.dumps({"axes": grid.axes, "fixed": grid.fixed, "preset": grid.preset}, sort_keys=True, default=str)
+    return "sweep-" + "-".join(k.split(".")[-1] for k in grid.axes) + "-" + hashlib.sha1(blob.encode()).hexdigest()[:6]
