@@ -13,6 +13,8 @@ the seed, the speed settings and the output settings of ``RunConfig`` are one) a
 ``comparison.csv``   the same values, one line per configuration and metric (with the raw values)
 ``comparison-current[-<schedule>].png``  each configuration's current-performance curve (mean
                      over seeds, min-max band) on a shared drift schedule
+``comparison-retention[-<schedule>].png``  the same for the retention of the schedule's first
+                     task while other tasks are current: the population's and the top individual's
 ``comparison-diagnostics[-<schedule>].png``  the same for each diagnostic the optimisers log
                      (``Optimizer.diagnostics``: the distance to the regulariser's reference and
                      its spread; NEAT's fraction of disabled connections), one panel each
@@ -44,7 +46,7 @@ import numpy as np
 
 from algorithms import REGISTRY
 
-from .plots import CONFIG_COLORS, band, draw_drifts, save, shade_phases, stack
+from .plots import CONFIG_COLORS, band, draw_drifts, retention_by_task, save, shade_phases, stack
 from .checkpoint import atomic_write_bytes
 from .rundir import Run, configuration_of, describe_config, group_runs, is_run_dir, load_runs, write_json
 from .schedule import parse_schedule
@@ -322,6 +324,26 @@ def _overlay(ax, groups: list[list[Run]], configs: list[dict[str, Any]], column:
     ax.legend(fontsize=8, loc="best")
 
 
+def _overlay_retention(ax, groups: list[list[Run]], configs: list[dict[str, Any]], level: str, task: str) -> bool:
+    """Each configuration's retention of ``task`` (mean over seeds, min-max band) where it was
+    measured; False if no configuration measured any."""
+    drawn = False
+    for k, group in enumerate(groups):
+        found = retention_by_task(group, level).get(task)
+        if found is not None:
+            generations, values = found
+            label = f"{describe_config(group[0].config, configs)} (n={len(group)})"
+            band(ax, generations, values, CONFIG_COLORS[k % len(CONFIG_COLORS)], "-", label,
+                 marker="o" if len(generations) < 40 else None)
+            drawn = True
+    draw_drifts(ax, groups[0][0])
+    shade_phases(ax, groups[0][0])
+    ax.set_xlabel("generation")
+    ax.grid(alpha=0.25)
+    ax.legend(fontsize=8, loc="best")
+    return drawn
+
+
 def _diagnostics(groups: list[list[Run]]) -> list[str]:
     """The optimisers' per-generation diagnostics (``Optimizer.diagnostics``) these runs logged."""
     names: dict[str, None] = {}
@@ -356,6 +378,19 @@ def overlay_figures(paths, out: Path) -> list[Path]:
                      "mean over seeds, band: min-max; coloured strip: the current task", fontsize=10)
         ax.set_ylabel("fitness (reward per episode)")
         written.append(save(fig, out / f"comparison-current{suffix}.png"))
+        first = groups[0][0].tasks[0] if groups[0][0].tasks else None
+        fig, axes = plt.subplots(2, 1, figsize=(10, 7), sharex=True, constrained_layout=True)
+        drawn = [_overlay_retention(ax, groups, configs, level, first) for ax, level in zip(axes, ("pop", "top"))]
+        if any(drawn):
+            axes[0].set_xlabel("")
+            axes[0].set_ylabel(f"R_pop ({first})")
+            axes[1].set_ylabel(f"R_top ({first})")
+            axes[0].set_title(f"Retention of the first task, {first}, while other tasks are current "
+                              f"(population: best; top individual), schedule {schedule}\n"
+                              "mean over seeds, band: min-max; coloured strip: the current task", fontsize=10)
+            written.append(save(fig, out / f"comparison-retention{suffix}.png"))
+        else:
+            plt.close(fig)
         names = _diagnostics(groups)
         if names:
             fig, axes = plt.subplots(len(names), 1, figsize=(10, 3.2 * len(names)), sharex=True,

@@ -166,6 +166,7 @@ def test_compare_groups_configurations_and_matches_hand_computation(sweep, tmp_p
     assert float(written[0]["mean"]) == pytest.approx(rows[0]["mean"])
     assert (out / "comparison-current.png").read_bytes().startswith(PNG)
     assert (out / "comparison-diagnostics.png").read_bytes().startswith(PNG)
+    assert (out / "comparison-retention.png").read_bytes().startswith(PNG)  # red's, measured during green
     assert "neat reg=1 red-green-red" in capsys.readouterr().out
     es_only = tmp_path / "cmp-es"
     assert cli_main(["compare", str(sweep / "openai-es"), "--out", str(es_only)]) == 0
