@@ -41,6 +41,10 @@ from neat.genes import DefaultConnectionGene, DefaultNodeGene
 from neat.species import Species
 
 
+PAIR_GENES_AT_ONCE = 1 << 21
+"""At most about this many (pair, gene) entries per batch: a few tens of MB of temporaries."""
+
+
 def node_distance_terms(gene_type: type) -> tuple[str, ...] | None:
     """The attributes whose absolute differences a node gene's ``distance`` adds, in its order;
     None for a distance this module does not know."""
@@ -87,11 +91,16 @@ class GenomeTable:
 
     def distances(self, selves: Sequence, others: Sequence) -> torch.Tensor:
         """``(len(selves), len(others))`` float64: ``selves[i].distance(others[j], config)``."""
-        s = torch.tensor([self.row[g.key] for g in selves], dtype=torch.long)
         o = torch.tensor([self.row[g.key] for g in others], dtype=torch.long)
-        node = self._part(self.nodes, s, o, self._node_gene_distances)
-        connection = self._part(self.connections, s, o, self._connection_gene_distances)
-        return (node + connection).T.contiguous()
+        width = max(self.nodes.order.shape[1], self.connections.order.shape[1], 1)
+        step = max(1, PAIR_GENES_AT_ONCE // max(1, len(others) * width))  # bounds the (others, selves, genes) temporaries
+        rows = []
+        for start in range(0, len(selves), step):
+            s = torch.tensor([self.row[g.key] for g in selves[start:start + step]], dtype=torch.long)
+            node = self._part(self.nodes, s, o, self._node_gene_distances)
+            connection = self._part(self.connections, s, o, self._connection_gene_distances)
+            rows.append((node + connection).T)
+        return torch.cat(rows) if rows else torch.zeros(0, len(others), dtype=torch.float64)
 
     def _node_gene_distances(self, mine: dict, theirs: dict) -> torch.Tensor:
         # as DefaultNodeGene.distance: the terms' |differences| in order, +1.0 for a different

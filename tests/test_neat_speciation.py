@@ -9,7 +9,7 @@ import neat
 import pytest
 import torch
 
-from algorithms import neat_network
+from algorithms import neat_network, neat_speciation
 from algorithms.neat_genetics import GENETICS
 from algorithms.neat_optimizer import NeatOptimizer
 from algorithms.neat_speciation import DistanceCache, GenomeTable
@@ -46,7 +46,8 @@ def evolved(request):
     return request.param, _run(request.param)
 
 
-def test_distances_are_neat_pythons_bit_for_bit(evolved):
+@pytest.mark.parametrize("batched", ["all selves at once", "one self at a time"])
+def test_distances_are_neat_pythons_bit_for_bit(evolved, batched, monkeypatch):
     """Every pair, in both directions (which differ in the last bit for many pairs): equal to
     ``a.distance(b)``, not merely close. Summing the genes' distances in any other order than
     neat-python's breaks this on thousands of these pairs."""
@@ -63,6 +64,8 @@ def test_distances_are_neat_pythons_bit_for_bit(evolved):
     others = population + [bare, relabelled]
     selves = earlier + [bare, relabelled]
 
+    if batched == "one self at a time":
+        monkeypatch.setattr(neat_speciation, "PAIR_GENES_AT_ONCE", 1)
     got = GenomeTable(selves + others, config).distances(selves, others).tolist()
     expected = [[a.distance(b, config) for b in others] for a in selves]
     mismatches = [(i, j) for i, row in enumerate(expected) for j, d in enumerate(row) if got[i][j] != d]
