@@ -309,27 +309,13 @@ def write_csv(rows: list[dict[str, Any]], path: Path) -> Path:
     return path
 
 
-def _overlay(ax, groups: list[list[Run]], configs: list[dict[str, Any]], column: str) -> None:
-    """Each configuration's ``column`` (mean over seeds, min-max band) over the schedule's phases."""
-    for k, group in enumerate(groups):
-        if column in group[0].metrics[0]:
-            generations, values = stack(group, column)
-            label = f"{describe_config(group[0].config, configs)} (n={len(group)})"
-            band(ax, generations, values, CONFIG_COLORS[k % len(CONFIG_COLORS)], "-", label)
-    draw_drifts(ax, groups[0][0])
-    shade_phases(ax, groups[0][0])
-    ax.set_xlabel("generation")
-    ax.margins(y=0.08)
-    ax.grid(alpha=0.25)
-    ax.legend(fontsize=8, loc="best")
-
-
-def _overlay_retention(ax, groups: list[list[Run]], configs: list[dict[str, Any]], level: str, task: str) -> bool:
-    """Each configuration's retention of ``task`` (mean over seeds, min-max band) where it was
-    measured; False if no configuration measured any."""
+def _overlay(ax, groups: list[list[Run]], configs: list[dict[str, Any]], series) -> bool:
+    """Each configuration's ``series(group)`` (generations, values per seed; None where it has
+    none) as mean over seeds with a min-max band, over the schedule's phases; False if no
+    configuration had any."""
     drawn = False
     for k, group in enumerate(groups):
-        found = retention_by_task(group, level).get(task)
+        found = series(group)
         if found is not None:
             generations, values = found
             label = f"{describe_config(group[0].config, configs)} (n={len(group)})"
@@ -339,9 +325,15 @@ def _overlay_retention(ax, groups: list[list[Run]], configs: list[dict[str, Any]
     draw_drifts(ax, groups[0][0])
     shade_phases(ax, groups[0][0])
     ax.set_xlabel("generation")
+    ax.margins(y=0.08)
     ax.grid(alpha=0.25)
     ax.legend(fontsize=8, loc="best")
     return drawn
+
+
+def _column(name: str):
+    """The ``series`` of a metrics.csv column, for ``_overlay``."""
+    return lambda group: stack(group, name) if name in group[0].metrics[0] else None
 
 
 def _diagnostics(groups: list[list[Run]]) -> list[str]:
@@ -373,14 +365,15 @@ def overlay_figures(paths, out: Path) -> list[Path]:
         schedule = str(groups[0][0].config.get("schedule", ""))
         suffix = "" if len(by_schedule) == 1 else f"-{index}-" + re.sub(r"[^A-Za-z0-9]+", "-", schedule).strip("-")
         fig, ax = plt.subplots(figsize=(10, 5), constrained_layout=True)
-        _overlay(ax, groups, configs, "best")
+        _overlay(ax, groups, configs, _column("best"))
         ax.set_title(f"Current performance C (best of the population on the current task), schedule {schedule}\n"
                      "mean over seeds, band: min-max; coloured strip: the current task", fontsize=10)
         ax.set_ylabel("fitness (reward per episode)")
         written.append(save(fig, out / f"comparison-current{suffix}.png"))
         first = groups[0][0].tasks[0] if groups[0][0].tasks else None
         fig, axes = plt.subplots(2, 1, figsize=(10, 7), sharex=True, constrained_layout=True)
-        drawn = [_overlay_retention(ax, groups, configs, level, first) for ax, level in zip(axes, ("pop", "top"))]
+        drawn = [_overlay(ax, groups, configs, lambda group, level=level: retention_by_task(group, level).get(first))
+                 for ax, level in zip(axes, ("pop", "top"))]
         if any(drawn):
             axes[0].set_xlabel("")
             axes[0].set_ylabel(f"R_pop ({first})")
@@ -396,7 +389,7 @@ def overlay_figures(paths, out: Path) -> list[Path]:
             fig, axes = plt.subplots(len(names), 1, figsize=(10, 3.2 * len(names)), sharex=True,
                                      constrained_layout=True, squeeze=False)
             for ax, name in zip(axes[:, 0], names):
-                _overlay(ax, groups, configs, name)
+                _overlay(ax, groups, configs, _column(name))
                 ax.set_ylabel(name)
             axes[0, 0].set_title(f"Optimiser diagnostics per generation, schedule {schedule}\n"
                                  "mean over seeds, band: min-max; coloured strip: the current task", fontsize=10)
