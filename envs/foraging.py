@@ -30,6 +30,8 @@ BOX_LOW = (6, 2)
 MIN_BOX_SPACING = 2.0
 """Initial boxes are redrawn until this far from every earlier box."""
 _HASH_MASK = 0x7FFFFFFF
+GRAPH_WARM_UP_STEPS = 3
+"""Steps run (and undone) before a CUDA graph is captured: capture needs warmed-up kernels."""
 
 
 @dataclass
@@ -146,6 +148,14 @@ class _Arena:
             target=s.target.to(torch.int32), season=s.season, steps=s.steps, retrieved=s.retrieved, done=s.done,
             respawn_key=s.respawn_key)
 
+    def clone(self) -> "_Arena":
+        return _Arena(**{f.name: getattr(self, f.name).clone() for f in fields(self)})
+
+    def copy_(self, other: "_Arena") -> None:
+        """Overwrite every field in place with ``other``'s (the buffers a CUDA graph reads)."""
+        for f in fields(self):
+            getattr(self, f.name).copy_(getattr(other, f.name))
+
     def to_state(self) -> ForagingState:
         return ForagingState(
             agent_pos=torch.stack((self.ax.T, self.ay.T), -1), heading=self.heading.T.clone(),
@@ -241,6 +251,12 @@ class ForagingEnv:
         self._first_box = 4 + (c.n_agents if c.see_other_agents else 0)
         self._keys = _OrderKeys(self._first_box + c.n_boxes, low=-1.0, high=max(c.sensor_range, c.sensitivity) + 0.5)
         self._arena: _Arena | None = None
+        # graph_step: the in-place, sync-free step, and its CUDA graph once captured
+        self._in_place = False
+        self._capture = False
+        self._graph: torch.cuda.CUDAGraph | None = None
+        self._graph_wheels: torch.Tensor | None = None
+        self._graph_outputs = None
 
     # ------------------------------------------------------------------ tasks and reset
     def task_tensors(self, tasks: Task | Sequence[Task], n: int | None = None):
@@ -332,7 +348,12 @@ class ForagingEnv:
             state = self.sample_state(tasks, generator)
         else:
             state = self._checked_state(state)
-        self._arena = _Arena.from_state(state)
+        arena = _Arena.from_state(state)
+        if self._in_place and self._arena is not None:
+            self._arena.copy_(arena)  # the buffers a captured graph reads stay where they are
+        else:
+            # a copy: from_state shares some of the caller's tensors, which steps in place would change
+            self._arena = arena.clone() if self._in_place else arena
         return self._observe_arena()
 
     def reset_done(self, tasks: Task | Sequence[Task], generator: torch.Generator | int | None = None,
@@ -370,6 +391,26 @@ class ForagingEnv:
         options = {"assert_indirect_indexing": False, "cpp_wrapper": True}
         self._move_and_reach = torch.compile(self._move_and_reach, dynamic=False, options=options)
         self._settle_and_sense = torch.compile(self._settle_and_sense, dynamic=False, options=options)
+
+    def graph_step(self, capture: bool | None = None) -> None:
+        """Step so that a CUDA graph can replay the step: one launch instead of a few hundred
+        small kernels. The state then lives in fixed buffers that every step overwrites in place
+        (``reset`` copies into them), and nothing in the step waits for the device: pick
+        conflicts are always resolved and dropped boxes always respawned, each an exact no-op
+        where no agents collide and nobody drops. The numbers are the plain step's, bit for bit,
+        and ``step`` still returns fresh tensors.
+
+        ``capture`` (default: where the device is cuda) records the step as a CUDA graph at the
+        first step after this call, and replays it from then on (one graph per environment, so
+        one per batch shape, as with ``compile``; call ``compile`` first to capture the compiled
+        step). ``capture=False`` runs the same in-place step without a graph, on any device."""
+        if capture is None:
+            capture = self.device.type == "cuda"
+        if capture and self.device.type != "cuda":
+            raise ConfigError(f"a CUDA graph needs a cuda device, not {self.device}: use graph_step(capture=False)")
+        if self._arena is not None and not self._in_place:
+            self._arena = self._arena.clone()
+        self._in_place, self._capture, self._graph = True, capture, None
 
     @property
     def state(self) -> ForagingState:
@@ -411,6 +452,14 @@ class ForagingEnv:
         ``drop_correct`` and ``respawn_cell`` (the cell a dropped box went to, -1 otherwise), and
         per environment ``terminated`` (max retrievals reached) and ``truncated`` (duration reached).
         """
+        if self._in_place:
+            if not self._capture:
+                return _fresh(self._step_in_place(wheels))
+            if self._graph is None:
+                self._capture_graph(wheels)
+            self._graph_wheels.copy_(wheels)
+            self._graph.replay()
+            return _fresh(self._graph_outputs)
         a = self._arena
         ax, ay, heading, picked, nearest, wants, rank, top_rank = self._move_and_reach(
             wheels, a.ax, a.ay, a.heading, a.carrying, a.bx, a.by, a.present, a.done)
@@ -422,6 +471,39 @@ class ForagingEnv:
             a.steps, a.retrieved, a.done, a.respawn_key)
         self._arena = replace(a, ax=ax, ay=ay, heading=heading, **arena)
         return _batch_first(observations), reward, arena["done"], info
+
+    def _step_in_place(self, wheels: torch.Tensor):
+        """``step`` without waiting for the device, writing the new state into the arena's own
+        buffers; returns the step's outputs (fresh tensors only until the next step)."""
+        a = self._arena
+        ax, ay, heading, picked, nearest, wants, rank, _ = self._move_and_reach(
+            wheels, a.ax, a.ay, a.heading, a.carrying, a.bx, a.by, a.present, a.done)
+        # an agent's rank is below n_agents; ranks that nobody holds leave every pick as it is
+        picked = self._resolve_conflicts(nearest, wants, rank, self.config.n_agents - 1, a.bx, a.by, a.present)
+        observations, reward, arena, info = self._settle_and_sense(
+            ax, ay, heading, picked, a.carrying, a.bx, a.by, a.color, a.present, a.target,
+            a.steps, a.retrieved, a.done, a.respawn_key)
+        for name, value in {"ax": ax, "ay": ay, "heading": heading, **arena}.items():
+            getattr(a, name).copy_(value)
+        return _batch_first(observations), reward, a.done, info
+
+    def _capture_graph(self, wheels: torch.Tensor) -> None:
+        """Record ``_step_in_place`` as a CUDA graph reading ``_graph_wheels`` and the arena's
+        buffers. The warm-up steps before it (which compile a compiled step and settle the
+        allocator, as capture requires) run on a copy of the state that is then put back."""
+        self._graph_wheels = wheels.clone()
+        saved = self._arena.clone()
+        side = torch.cuda.Stream(self.device)
+        side.wait_stream(torch.cuda.current_stream(self.device))
+        with torch.cuda.stream(side):
+            for _ in range(GRAPH_WARM_UP_STEPS):
+                self._step_in_place(self._graph_wheels)
+        torch.cuda.current_stream(self.device).wait_stream(side)
+        self._arena.copy_(saved)
+        graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(graph):  # records the kernels without running them
+            self._graph_outputs = self._step_in_place(self._graph_wheels)
+        self._graph = graph
 
     def _move_and_reach(self, wheels, ax, ay, heading, carrying, bx, by, present, done):
         """Steps 1 and 2 of the spec: the moved agents, and the box each agent picks, -1 for none,
@@ -494,7 +576,8 @@ class ForagingEnv:
         # with repositioning off, a dropped box is gone. Eagerly, skipping the respawn when nobody
         # drops saves time; in a compiled graph the branch would split the graph, which costs more
         # than the fused respawn
-        if c.repositioning and (torch.compiler.is_compiling() or bool(dropping.any())):
+        # (is_compiling first: a compiled graph then never reads, nor guards on, _in_place)
+        if c.repositioning and (torch.compiler.is_compiling() or self._in_place or bool(dropping.any())):
             respawn = (respawn_cells(respawn_key, steps, c.n_agents, int(c.size)) + 1) * dropping[..., None] - 1
             bx, by, present = self._respawn(dropped, respawn, bx, by, present)
         retrieved = retrieved + drop_correct.sum(dim=0, dtype=torch.int32)
@@ -584,6 +667,13 @@ class ForagingEnv:
             (target == self._color_ids)[:, None].to(self.dtype).expand(-1, A, -1),
         ))                                                                                 # (obs_dim, A, B)
         return parts
+
+
+def _fresh(outputs):
+    """Copies of a step's outputs (observations, rewards, done, info), which the in-place step
+    and its graph overwrite at the next step."""
+    observations, reward, done, info = outputs
+    return observations.clone(), reward.clone(), done.clone(), {k: v.clone() for k, v in info.items()}
 
 
 def _batch_first(features: torch.Tensor) -> torch.Tensor:

@@ -4,7 +4,8 @@ Without ``--algo``: the environment alone, with a random batched MLP controller 
 at several batch sizes, with the split between sensing, controller and dynamics.
 ``--eval-threads N`` splits the controllers over N threads as the lifelong run's evaluator does.
 With ``--algo NAME``: one full generation of that optimiser (ask, evaluate, regularise, tell);
-with ``--compile`` as well, first eagerly, then compiled.
+with ``--compile`` as well, first eagerly, then compiled. ``--cuda-graphs`` (with ``--device cuda``)
+replays the environment's step as a CUDA graph (``ForagingEnv.graph_step``).
 The last line is always ``s_per_generation=<seconds>`` for the chosen workload.
 ``benchmarks/reference_step.py`` (a script outside the package) runs the environment part on
 another step: ``main(env_class=...)``.
@@ -66,11 +67,12 @@ class _TimedEnv:
 
 
 def bench_env(n_envs: int, steps: int, config: ForagingConfig, device: str, compile_env: bool,
-              eval_threads: int = 1, env_class: type = ForagingEnv) -> dict:
+              eval_threads: int = 1, env_class: type = ForagingEnv, cuda_graphs: bool = False) -> dict:
     """Time ``steps`` steps (``evaluate.rollout``'s) of ``n_envs`` environments driven by one
     random MLP per 10 envs, split over ``eval_threads`` threads as the evaluator splits a
     population. ``env_class``: the step to time, ``ForagingEnv`` or one with its ``reset``,
-    ``step``, ``observe`` and ``compile``."""
+    ``step``, ``observe`` and ``compile``; ``cuda_graphs``: its step replayed as a CUDA graph
+    (captured during the untimed warm-up)."""
     generator = torch.Generator().manual_seed(0)
     population = max(1, n_envs // 10)
     sizes = layer_sizes_for(config.obs_dim)
@@ -80,6 +82,8 @@ def bench_env(n_envs: int, steps: int, config: ForagingConfig, device: str, comp
         env = env_class(config, batch_size=(stop - start) * 10, device=device)
         if compile_env:
             env.compile()
+        if cuda_graphs:
+            env.graph_step(capture=True)
         shards.append((policy.shard(start, stop), env, env.reset(TASKS["red"], generator=generator)))
     with ThreadPoolExecutor(len(shards)) as pool:
         list(pool.map(lambda shard: rollout(*shard, steps=WARM_UP_STEPS), shards))  # compiles, with --compile
@@ -106,7 +110,7 @@ def _split(result: dict) -> str:
 
 
 def bench_algo(algo: str, population: int, n_envs: int, generations: int, device: str, compiled: bool,
-               eval_threads: int = 1) -> dict:
+               eval_threads: int = 1, cuda_graphs: bool = False) -> dict:
     """Time full generations of ``algo`` at the paper's size (after one warm-up generation)."""
     config = ForagingConfig()
     optimizer = make_optimizer(algo, obs_dim=config.obs_dim, population_size=population, seed=0, device=device)
@@ -117,7 +121,8 @@ def bench_algo(algo: str, population: int, n_envs: int, generations: int, device
         with update_threads(threads, eval_threads):  # as the lifelong loop does
             policy, t_ask = _timed(optimizer.ask)
         fitness, t_eval = _timed(lambda: evaluate(policy, config, [TASKS["red"]], n_envs, generator, device,
-                                                  compiled=compiled, eval_threads=eval_threads)[0])
+                                                  compiled=compiled, eval_threads=eval_threads,
+                                                  cuda_graphs=cuda_graphs)[0])
         with update_threads(threads, eval_threads):
             _, t_tell = _timed(lambda: optimizer.tell(fitness, optimizer.regularise(fitness)))
         if generation:  # the first generation warms up
@@ -146,22 +151,26 @@ def main(argv=None, env_class: type = ForagingEnv) -> None:
                         help="threads that each play a slice of the controllers (use with --compile --threads 1)")
     parser.add_argument("--compile", action="store_true", help="torch.compile the environment's step (compiled during the untimed warm-up)")
     parser.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
+    parser.add_argument("--cuda-graphs", action="store_true",
+                        help="replay the environment's step as a CUDA graph (captured during the warm-up; --device cuda)")
     args = parser.parse_args(argv)
     config = ForagingConfig()
     if env_class is not ForagingEnv and args.algo:
         parser.error(f"{env_class.__name__} is timed as the environment step alone: drop --algo")
+    if args.cuda_graphs and (env_class is not ForagingEnv or not args.device.startswith("cuda")):
+        parser.error("--cuda-graphs replays ForagingEnv's step on a GPU: add --device cuda, or drop --cuda-graphs")
     if not 1 <= args.steps <= config.duration - WARM_UP_STEPS:
         parser.error(f"--steps must be from 1 to {config.duration - WARM_UP_STEPS}: the timed steps follow the "
                      f"warm-up within one {config.duration}-step episode")
     torch.set_num_threads(args.threads)
     print(f"threads={torch.get_num_threads()} eval_threads={args.eval_threads} device={args.device} "
-          f"compile={'on' if args.compile else 'off'}"
+          f"compile={'on' if args.compile else 'off'} cuda_graphs={'on' if args.cuda_graphs else 'off'}"
           + ("" if env_class is ForagingEnv else f" step={env_class.__name__}"))
     if args.algo:
         # under --compile the eager figure comes first, so that one call shows what compiling buys
         for compiled in ([False, True] if args.compile else [False]):
             result = bench_algo(args.algo, args.population, args.evals, args.generations, args.device, compiled,
-                                args.eval_threads)
+                                args.eval_threads, args.cuda_graphs)
             print(f"algo={args.algo} compile={'on' if compiled else 'off'} controllers={result['controllers']} "
                   f"x {args.evals} envs x 500 steps: ask {result['ask']:.3f} s, evaluate {result['evaluate']:.3f} s, "
                   f"regularise+tell {result['tell']:.3f} s; {result['s_per_generation']:.3f} s/generation")
@@ -170,7 +179,8 @@ def main(argv=None, env_class: type = ForagingEnv) -> None:
     sizes = [int(s) for s in args.also.split(",") if s] + [args.envs]
     result = {}
     for n_envs in sizes:
-        result = bench_env(n_envs, args.steps, config, args.device, args.compile, args.eval_threads, env_class)
+        result = bench_env(n_envs, args.steps, config, args.device, args.compile, args.eval_threads, env_class,
+                           args.cuda_graphs)
         print(f"envs={result['envs']:>6} x 500 steps: {result['s_per_generation']:.3f} s/generation, "
               f"{result['agent_steps_per_s'] / 1e6:.2f} M agent-steps/s; split: {_split(result)}")
     print(f"s_per_generation={result['s_per_generation']:.3f}")

@@ -48,6 +48,9 @@ class RunConfig:
     compile: bool = True
     """torch.compile the environment's step: faster steps after a compile per batch shape; needs a
     C++ compiler (docs/performance.md)."""
+    cuda_graphs: bool = False
+    """Replay the environment's step as one CUDA graph (needs --device cuda): the same numbers in
+    one launch instead of many small kernels (docs/performance.md)."""
     record: bool = True
     """Write recording.rrd (Rerun)."""
     episodes_every: int = 0
@@ -59,7 +62,8 @@ class RunConfig:
 
     SEED_SETTINGS: ClassVar[tuple[str, ...]] = ("seed",)
     """Which repetition of a configuration a run is."""
-    SPEED_SETTINGS: ClassVar[tuple[str, ...]] = ("device", "threads", "eval_threads", "compile", "checkpoint_every")
+    SPEED_SETTINGS: ClassVar[tuple[str, ...]] = ("device", "threads", "eval_threads", "compile", "cuda_graphs",
+                                                 "checkpoint_every")
     """How a run is computed: they change at most the rounding of its numbers, so runs that differ
     only in them (and in the seed) are one configuration; a resumed run keeps them."""
     OUTPUT_SETTINGS: ClassVar[tuple[str, ...]] = ("record", "episodes_every")
@@ -68,8 +72,11 @@ class RunConfig:
     @classmethod
     def outcome_settings(cls, values: dict[str, Any]) -> dict[str, Any]:
         """The settings among ``values`` (fields of a RunConfig, as ``to_dict`` or config.json
-        hold them) that a resumed run must keep, as JSON compares them (tuples are lists)."""
-        return {k: v for k, v in json.loads(json.dumps(values)).items() if k not in cls.OUTPUT_SETTINGS}
+        hold them) that a resumed run must keep, as JSON compares them (tuples are lists). A
+        field that ``values`` lacks (a config.json written before the field existed) counts at
+        its default, which is how such a run ran."""
+        filled = {**asdict(cls()), **values} if values else {}
+        return {k: v for k, v in json.loads(json.dumps(filled)).items() if k not in cls.OUTPUT_SETTINGS}
 
     @classmethod
     def configuration_settings(cls, values: dict[str, Any]) -> dict[str, Any]:
@@ -123,6 +130,9 @@ class RunConfig:
                      "eval_threads"):
             if getattr(config, name) < 1:
                 raise ConfigError(f"{flag(name)} must be >= 1, got {getattr(config, name)}")
+        if config.cuda_graphs and not config.device.startswith("cuda"):
+            raise ConfigError(f"--cuda-graphs needs --device cuda, not {config.device!r}: drop --cuda-graphs "
+                              "or run on a GPU")
         if config.episodes_every < 0:
             raise ConfigError(f"--episodes-every must be >= 0, got {config.episodes_every}")
         try:

@@ -17,12 +17,14 @@ from envs import ConfigError, ForagingConfig, ForagingEnv, ForagingState, Task, 
 
 @functools.lru_cache(maxsize=16)
 def _env(config: ForagingConfig, batch_size: int, device: str, dtype: torch.dtype, compiled: bool,
-         thread: int) -> ForagingEnv:
+         thread: int, cuda_graphs: bool = False) -> ForagingEnv:
     """One environment object per batch shape and evaluation thread (each steps its own), so
-    that a compiled step is compiled once per shape."""
+    that a compiled step is compiled, and a CUDA graph captured, once per shape."""
     env = ForagingEnv(config, batch_size=batch_size, device=device, dtype=dtype)
     if compiled:
         env.compile()
+    if cuda_graphs:
+        env.graph_step(capture=True)
     return env
 
 
@@ -58,9 +60,10 @@ def shard_bounds(population: int, eval_threads: int) -> list[tuple[int, int]]:
 
 def run_episodes(policy: BatchedPolicy, config: ForagingConfig, episodes: ForagingState,
                  device: str | torch.device = "cpu", dtype: torch.dtype = torch.float32,
-                 compiled: bool = False, eval_threads: int = 1) -> torch.Tensor:
+                 compiled: bool = False, eval_threads: int = 1, cuda_graphs: bool = False) -> torch.Tensor:
     """Every controller of ``policy`` plays every episode of ``episodes`` (E initial states);
-    returns the summed rewards ``(population, E)``.
+    returns the summed rewards ``(population, E)``; ``cuda_graphs``: the environments replay
+    their step as a CUDA graph (``ForagingEnv.graph_step``), with the same numbers.
 
     With ``eval_threads > 1`` the population is split into that many shards (``policy.shard``), each
     played in its own thread by its own environment. The compiled step releases the GIL, so the
@@ -71,10 +74,11 @@ def run_episodes(policy: BatchedPolicy, config: ForagingConfig, episodes: Foragi
     """
     bounds = shard_bounds(policy.population_size, eval_threads)
     if len(bounds) == 1 or not callable(getattr(policy, "shard", None)):
-        return _play(policy, config, episodes, device, dtype, compiled, thread=0)
+        return _play(policy, config, episodes, device, dtype, compiled, 0, cuda_graphs)
     shards = [policy.shard(start, stop) for start, stop in bounds]
     with ThreadPoolExecutor(len(shards), thread_name_prefix="evaluate") as pool:
-        totals = pool.map(lambda thread: _play(shards[thread], config, episodes, device, dtype, compiled, thread),
+        totals = pool.map(lambda thread: _play(shards[thread], config, episodes, device, dtype, compiled, thread,
+                                               cuda_graphs),
                           range(len(shards)))
         return torch.cat(list(totals))
 
@@ -106,21 +110,22 @@ def rollout(policy: BatchedPolicy, env: ForagingEnv, observations: torch.Tensor,
 
 
 def _play(policy: BatchedPolicy, config: ForagingConfig, episodes: ForagingState, device, dtype,
-          compiled: bool, thread: int) -> torch.Tensor:
+          compiled: bool, thread: int, cuda_graphs: bool) -> torch.Tensor:
     """``run_episodes`` for one evaluation thread: every controller meets the same E episodes."""
     population = policy.population_size
     n_episodes = episodes.target.shape[0]
-    env = _env(config, population * n_episodes, str(device), dtype, compiled, thread)
+    env = _env(config, population * n_episodes, str(device), dtype, compiled, thread, cuda_graphs)
     observations = env.reset(state=episodes.index(torch.arange(n_episodes).repeat(population)))
     return rollout(policy, env, observations).view(population, n_episodes)
 
 
 def evaluate(policy: BatchedPolicy, config: ForagingConfig, tasks: Sequence[Task], n_envs: int,
              generator: torch.Generator, device: str | torch.device = "cpu",
-             dtype: torch.dtype = torch.float32, compiled: bool = False, eval_threads: int = 1) -> torch.Tensor:
+             dtype: torch.dtype = torch.float32, compiled: bool = False, eval_threads: int = 1,
+             cuda_graphs: bool = False) -> torch.Tensor:
     """Fitness ``(len(tasks), population)``: the mean episode reward of every controller over
     ``n_envs`` fresh environments per task, drawn from ``generator`` and shared by all controllers
-    (``eval_threads``: see ``run_episodes``)."""
+    (``eval_threads``, ``cuda_graphs``: see ``run_episodes``)."""
     episodes = sample_episodes(config, tasks, n_envs, generator, device, dtype)
-    totals = run_episodes(policy, config, episodes, device, dtype, compiled, eval_threads)
+    totals = run_episodes(policy, config, episodes, device, dtype, compiled, eval_threads, cuda_graphs)
     return totals.view(policy.population_size, len(tasks), n_envs).mean(dim=-1).T

@@ -90,7 +90,8 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
             with update_threads(config.threads, config.eval_threads):
                 policy = optimizer.ask()
             fitness = evaluate(policy, env_config, [phase.task, *others], config.evals, generator, config.device,
-                               compiled=config.compile, eval_threads=config.eval_threads)
+                               compiled=config.compile, eval_threads=config.eval_threads,
+                               cuda_graphs=config.cuda_graphs)
             raw = fitness[0]
             regularised = optimizer.regularise(raw)
             # the top individual is the one selection favours, as in the paper's code: with a
@@ -182,7 +183,7 @@ def _checkpoint_payload(config, optimizer, generator, state) -> dict[str, Any]:
 
 
 def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopState:
-    stored = read_json(run_dir.config)
+    stored = RunConfig.outcome_settings(read_json(run_dir.config))
     mine = RunConfig.outcome_settings(config.to_dict())
     different = sorted(k for k in mine if stored.get(k) != mine[k])
     if different:

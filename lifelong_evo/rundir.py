@@ -124,7 +124,7 @@ class RunDir:
         the other is the same setting."""
         stored = read_json(self.config)
         mine = RunConfig.outcome_settings(config.to_dict())
-        theirs = dict(stored)
+        theirs = RunConfig.outcome_settings(stored)
         resolved = {"env": config.env_config().to_dict(), "algo_options": config.algo_options_resolved()}
         for given, written in RESOLVED:
             if written in stored and given in mine:

@@ -112,6 +112,7 @@ CUDA = torch.cuda.is_available()
     (["--device", "cuda:99"], "--device cuda:99: this machine has"),
     pytest.param(["--device", "cuda"], "--device cuda: this machine has no CUDA device",
                  marks=pytest.mark.skipif(CUDA, reason="this machine has CUDA")),
+    (["--cuda-graphs"], "--cuda-graphs needs --device cuda, not 'cpu': drop --cuda-graphs or run on a GPU"),
     (["--algo", "openai-es", "--population", "21"], "the population must be even, got 21"),
     (["--population", "abc"], "argument --population: 'abc' is not an integer"),
     (["--option", "references"], "--option 'references' is not KEY=VALUE"),

@@ -32,7 +32,7 @@ def test_algo_under_compile_prints_the_eager_figure_first(monkeypatch, capsys):
     import lifelong_evo.bench as bench
     calls = []
 
-    def fake_bench_algo(algo, population, n_envs, generations, device, compiled, eval_threads=1):
+    def fake_bench_algo(algo, population, n_envs, generations, device, compiled, eval_threads=1, cuda_graphs=False):
         calls.append(compiled)
         seconds = 0.5 if compiled else 2.0
         return {"ask": 0.0, "evaluate": seconds, "tell": 0.0, "controllers": population,
@@ -97,3 +97,9 @@ def test_steps_beyond_an_episode_are_refused(capsys):
     with pytest.raises(SystemExit):
         main(["--steps", "600"])
     assert "--steps must be from 1 to 497" in capsys.readouterr().err
+
+
+def test_cuda_graphs_are_refused_off_a_gpu(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["--cuda-graphs"])
+    assert stop.value.code == 2 and "add --device cuda, or drop --cuda-graphs" in capsys.readouterr().err

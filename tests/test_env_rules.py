@@ -12,8 +12,9 @@ from collections import Counter
 import pytest
 import torch
 from torch._dynamo.utils import counters
+from torch.utils._python_dispatch import TorchDispatchMode
 
-from envs import TASKS, ForagingConfig, ForagingEnv, Task, outputs_to_wheels
+from envs import TASKS, ConfigError, ForagingConfig, ForagingEnv, Task, outputs_to_wheels
 from envs.foraging import _remainder, hash31, respawn_cells
 
 try:
@@ -704,3 +705,96 @@ def test_compiled_step_matches_eager():
         assert torch.equal(getattr(compiled.state, name), getattr(eager.state, name)), name
     for name in ("agent_pos", "heading"):
         torch.testing.assert_close(getattr(compiled.state, name), getattr(eager.state, name), rtol=0, atol=1e-9)
+
+
+def _colliding_start(env: ForagingEnv, generator: torch.Generator):
+    """Every agent starts on a stacked cell next to the drop zone: picks collide, drops follow."""
+    start = env.sample_state(TASKS["red"], generator)
+    start.box_pos[:, :4] = torch.tensor([1.0, 10.0], dtype=env.dtype)
+    start.agent_pos[:, :, 0], start.agent_pos[:, :, 1] = 1.2, 10.1
+    return start
+
+
+@pytest.mark.parametrize("compiled", [False, True], ids=["eager", "compiled"])
+def test_in_place_step_for_cuda_graphs_equals_the_plain_step(compiled):
+    """``graph_step``'s step (fixed buffers, no wait for the device: what a CUDA graph replays,
+    run here without one) gives the plain step's numbers bit for bit, through pick conflicts,
+    drops, respawns, episode ends and autoresets, and never changes a state handed to reset."""
+    config = ForagingConfig(n_boxes=12, max_retrieves=3, duration=40)
+    plain, in_place = (ForagingEnv(config, batch_size=24, dtype=F64) for _ in range(2))
+    if compiled:
+        plain.compile()
+        in_place.compile()
+    in_place.graph_step(capture=False)
+    generator = torch.Generator().manual_seed(5)
+    start = _colliding_start(plain, generator)
+    handed = start.clone()
+    assert torch.equal(in_place.reset(state=handed), plain.reset(state=start))
+    events = Counter()
+    for step in range(90):
+        wheels = torch.rand(24, config.n_agents, 3, generator=generator, dtype=F64) * 4 - 2
+        want, got = plain.step(wheels), in_place.step(wheels)
+        for w, g in zip(want[:3], got[:3]):
+            assert torch.equal(g, w), step
+        assert want[3].keys() == got[3].keys()
+        for name, value in want[3].items():
+            assert torch.equal(got[3][name], value), (step, name)
+        events["conflicts"] += int(((want[3]["picked"] >= 0).sum(dim=1) >= 2).sum())
+        events["drops"] += int((want[3]["dropped"] >= 0).sum())
+        events["ended"] += int(want[2].sum())
+        if step % 10 == 9:  # autoreset: fresh episodes written into the buffers in place
+            seed = 100 + step
+            assert torch.equal(in_place.reset_done(TASKS["green"], generator=seed),
+                               plain.reset_done(TASKS["green"], generator=seed))
+    assert events["conflicts"] >= 5 and events["drops"] >= 5 and events["ended"] >= 24, events
+    for name in ("agent_pos", "heading", "carrying", "box_pos", "box_present", "steps", "retrieved", "done"):
+        assert torch.equal(getattr(in_place.state, name), getattr(plain.state, name)), name
+    for name in ("agent_pos", "steps", "carrying", "box_present"):
+        assert torch.equal(getattr(handed, name), getattr(start, name)), name
+
+
+def test_step_outputs_survive_the_next_in_place_step():
+    env = ForagingEnv(ForagingConfig(), batch_size=4)
+    env.graph_step(capture=False)
+    env.reset(TASKS["red"], generator=1)
+    first = env.step(torch.ones(4, env.config.n_agents, 3))
+    kept = [first[0].clone(), first[1].clone()]
+    env.step(-torch.ones(4, env.config.n_agents, 3))
+    assert torch.equal(first[0], kept[0]) and torch.equal(first[1], kept[1])
+
+
+def test_a_cuda_graph_needs_a_cuda_device():
+    env = ForagingEnv(ForagingConfig(), batch_size=2)
+    with pytest.raises(ConfigError, match="cuda device"):
+        env.graph_step(capture=True)
+
+
+class _HostReads(TorchDispatchMode):
+    """Counts reads of a tensor's value back to the host (``bool(t)``, ``int(t)``, ``t.item()``):
+    on a GPU each waits for the device, and none may happen inside a CUDA graph's capture."""
+
+    def __init__(self):
+        super().__init__()
+        self.count = 0
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        self.count += func is torch.ops.aten._local_scalar_dense.default
+        return func(*args, **(kwargs or {}))
+
+
+def test_the_in_place_step_never_waits_for_the_device():
+    """What capture needs, checked on the CPU: the plain step reads values back to the host (to
+    skip the rare conflict resolution and respawns), the in-place step never does."""
+    config = ForagingConfig(n_boxes=12)
+    generator = torch.Generator().manual_seed(3)
+    reads = {}
+    for mode in ("plain", "in place"):
+        env = ForagingEnv(config, batch_size=8)
+        if mode == "in place":
+            env.graph_step(capture=False)
+        env.reset(state=_colliding_start(env, torch.Generator().manual_seed(3)))
+        with _HostReads() as counter:
+            for _ in range(5):
+                env.step(torch.rand(8, config.n_agents, 3, generator=generator) * 4 - 2)
+        reads[mode] = counter.count
+    assert reads["plain"] >= 5 and reads["in place"] == 0, reads

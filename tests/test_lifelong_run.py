@@ -343,6 +343,18 @@ def test_resume_of_a_copy_without_controllers(smoke_runs, tmp_path):
     assert (run / "controllers/final-top.json").read_text() == (smoke_runs / "neat/controllers/final-top.json").read_text()
 
 
+def test_a_run_from_before_a_setting_existed_resumes(smoke_runs, tmp_path):
+    """A config.json written before a setting was added (here the newest, cuda_graphs) resumes:
+    the missing setting counts at its default, which is how that run ran."""
+    run = _copy(smoke_runs, tmp_path)
+    config = json.loads((run / "config.json").read_text())
+    del config["cuda_graphs"]
+    (run / "config.json").write_text(json.dumps(config))
+    sorted(run.glob("checkpoints/*.pt"))[-1].unlink()
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 0
+    _same_numbers(run, smoke_runs / "neat")
+
+
 def test_resume_refuses_changed_settings(smoke_runs, capsys):
     assert main(["--resume", "--out", str(smoke_runs), "--name", "neat", "--population", "50"]) == 2
     assert "stored settings" in capsys.readouterr().err
