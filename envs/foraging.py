@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 from dataclasses import dataclass, fields, replace
 from typing import Sequence
 
@@ -30,6 +31,7 @@ BOX_LOW = (6, 2)
 MIN_BOX_SPACING = 2.0
 """Initial boxes are redrawn until this far from every earlier box."""
 _HASH_MASK = 0x7FFFFFFF
+_CAPTURE_LOCK = threading.Lock()
 GRAPH_WARM_UP_STEPS = 3
 """Steps run (and undone) before a CUDA graph is captured: capture needs warmed-up kernels."""
 
@@ -490,7 +492,12 @@ class ForagingEnv:
     def _capture_graph(self, wheels: torch.Tensor) -> None:
         """Record ``_step_in_place`` as a CUDA graph reading ``_graph_wheels`` and the arena's
         buffers. The warm-up steps before it (which compile a compiled step and settle the
-        allocator, as capture requires) run on a copy of the state that is then put back."""
+        allocator, as capture requires) change the state, which is then put back. One capture
+        at a time in a process: evaluation threads capture their environments one by one."""
+        with _CAPTURE_LOCK:
+            self._capture_graph_alone(wheels)
+
+    def _capture_graph_alone(self, wheels: torch.Tensor) -> None:
         self._graph_wheels = wheels.clone()
         saved = self._arena.clone()
         side = torch.cuda.Stream(self.device)
@@ -501,7 +508,9 @@ class ForagingEnv:
         torch.cuda.current_stream(self.device).wait_stream(side)
         self._arena.copy_(saved)
         graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph):  # records the kernels without running them
+        # records the kernels without running them; thread-local, so that another evaluation
+        # thread stepping its own environment meanwhile does not break the capture
+        with torch.cuda.graph(graph, capture_error_mode="thread_local"):
             self._graph_outputs = self._step_in_place(self._graph_wheels)
         self._graph = graph
 
