@@ -5,6 +5,7 @@ known wheel speeds and reads the observation back through ``decode`` (the spec's
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import random
 from collections import Counter
@@ -798,3 +799,64 @@ def test_the_in_place_step_never_waits_for_the_device():
                 env.step(torch.rand(8, config.n_agents, 3, generator=generator) * 4 - 2)
         reads[mode] = counter.count
     assert reads["plain"] >= 5 and reads["in place"] == 0, reads
+
+
+class _FakeCapture:
+    """Stands in for CUDA's capture and replay on the CPU, with their semantics as far as the
+    environment relies on them: capture records the step without running it (the arena's
+    buffers are as before), and a replay runs the step again on the same input buffers and writes
+    its outputs into the tensors the capture returned."""
+
+    def __init__(self, env: ForagingEnv):
+        self.env, self.replays = env, 0
+
+    def graph(self, graph, capture_error_mode="global"):
+        fake = self
+
+        class Capture:
+            def __enter__(self):
+                self.before = fake.env._arena.clone()
+
+            def __exit__(self, *exc):
+                fake.env._arena.copy_(self.before)
+
+        return Capture()
+
+    def replay(self):
+        self.replays += 1
+        fresh = self.env._step_in_place(self.env._graph_wheels)
+        observations, reward, done, info = self.env._graph_outputs
+        for into, value in [(observations, fresh[0]), (reward, fresh[1]), (done, fresh[2]),
+                            *((info[k], fresh[3][k]) for k in info)]:
+            into.copy_(value)
+
+
+def test_captured_step_replays_the_plain_step(monkeypatch):
+    """The capture's plumbing, on the CPU with a stand-in for CUDA: the warm-up steps before the
+    capture are undone, each replay reads the wheels of its step, a reset writes where the
+    replays read, and the numbers are the plain step's."""
+    config = ForagingConfig(n_boxes=12, max_retrieves=3, duration=40)
+    plain, graphed = (ForagingEnv(config, batch_size=24, dtype=F64) for _ in range(2))
+    fake = _FakeCapture(graphed)
+    stream = type("Stream", (), {"wait_stream": lambda self, other: None})
+    monkeypatch.setattr(torch.cuda, "Stream", lambda device=None: stream())
+    monkeypatch.setattr(torch.cuda, "current_stream", lambda device=None: stream())
+    monkeypatch.setattr(torch.cuda, "stream", lambda s: contextlib.nullcontext())
+    monkeypatch.setattr(torch.cuda, "graph", fake.graph)
+    monkeypatch.setattr(torch.cuda, "CUDAGraph", lambda: type("Graph", (), {"replay": lambda self: fake.replay()})())
+    graphed.graph_step(capture=False)
+    graphed._capture = True  # as graph_step() sets it on a cuda device
+    generator = torch.Generator().manual_seed(5)
+    start = _colliding_start(plain, generator)
+    graphed.reset(state=start.clone())
+    plain.reset(state=start)
+    for step in range(60):
+        wheels = torch.rand(24, config.n_agents, 3, generator=generator, dtype=F64) * 4 - 2
+        want, got = plain.step(wheels), graphed.step(wheels)
+        for w, g in zip(want[:3], got[:3]):
+            assert torch.equal(g, w), step
+        for name, value in want[3].items():
+            assert torch.equal(got[3][name], value), (step, name)
+        if step == 30:
+            assert torch.equal(graphed.reset(state=start.clone()), plain.reset(state=start))
+    assert fake.replays == 60
