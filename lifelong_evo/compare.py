@@ -5,8 +5,11 @@ folder works), groups the runs by configuration (``rundir.group_runs``: runs tha
 the seed, the speed settings and the output settings of ``RunConfig`` are one) and writes, to
 ``--out`` (default: the one folder given, else ``comparison/``):
 
-``comparison.md``    an overview (one line per configuration), then per configuration the paper's
-                     table: current performance C per phase (and C_top, the top individual's),
+``comparison.md``    an overview (one line per configuration: ACC/BWT/FWT), the paper's table (one
+                     line per configuration, per schedule of at least two tasks: the first task's
+                     C, the second's C_top, the first task's retention and forgetting at the
+                     second's end, C of the third task, ACC/BWT/FWT of the population and the
+                     wall time per run), then per configuration the paper's tables in full: current performance C per phase (and C_top, the top individual's),
                      retention R and forgetting F of the population and the top individual at
                      each later task end, ACC/BWT/FWT; every value is the mean over seeds with its
                      95% bootstrap interval (2000 resamples, fixed seed; one seed: the value alone)
@@ -114,6 +117,8 @@ def run_metrics(summary: dict[str, Any]) -> list[tuple[str, str, float | None]]:
             name = f"{key}_{level}"
             if name in summary:
                 out.append(("transfer", name, summary[name]))
+    if summary.get("wall_time_s") is not None:
+        out.append(("cost", "wall time (min)", summary["wall_time_s"] / 60))
     return out
 
 
@@ -161,6 +166,37 @@ def section(heading: str, intro: str, found: Estimates) -> str:
     return "\n".join(lines)
 
 
+def paper_columns(phases: list[str]) -> list[tuple[str, str]]:
+    """(heading, metric name) of the paper's one-line-per-configuration table for a schedule of
+    ``phases`` (task names; at least two): the first task learnt (C), the second learnt by the top
+    individual (C_top), the first task's retention and forgetting at the second's end, the third
+    task's C (in the paper's red -> green -> red, red when it returns), transfer and cost."""
+    first, second = phases[0], phases[1]
+    where = f"{first} at end of phase 1"
+    columns = [(f"{first} C", f"C phase 0 ({first})"), (f"{second} C_top", f"C_top phase 1 ({second})"),
+               *((f"{first} {key}", f"{key} {where}") for key in ("R_pop", "F_pop", "R_top", "F_top"))]
+    if len(phases) > 2:
+        returns = " (returns)" if phases[2] == first else ""
+        columns.append((f"{phases[2]} C{returns}", f"C phase 2 ({phases[2]})"))
+    return columns + [(name, name) for name in ("ACC_pop", "BWT_pop", "FWT_pop")] + [("wall time per run (min)",
+                                                                                       "wall time (min)")]
+
+
+def paper_tables(labelled: list[tuple[str, int, list[str], Estimates]]) -> list[str]:
+    """The paper's table for each schedule among ``labelled`` (label, seeds, phases, estimates)
+    with at least two tasks, configurations in the given order."""
+    lines: list[str] = []
+    schedules = list(dict.fromkeys(tuple(phases) for _, _, phases, _ in labelled if len(phases) >= 2))
+    for phases in schedules:
+        columns = paper_columns(list(phases))
+        rows = [[label, n, *(_cell(found, name) for _, name in columns)]
+                for label, n, their, found in labelled if tuple(their) == phases]
+        lines += [f"The paper's table ({' -> '.join(phases)}): the first task's retention at the end of the "
+                  "second; mean over seeds [95% bootstrap interval].", "",
+                  *table(["configuration", "n seeds", *(heading for heading, _ in columns)], rows), ""]
+    return lines
+
+
 def csv_rows(label: str, config: dict[str, Any], found: Estimates, reg: Any = None) -> list[dict[str, Any]]:
     """comparison.csv's rows of one configuration (``reg``: what its reg column says, default its lambda)."""
     return [{"configuration": label, "algo": config.get("algo"), "reg": config.get("reg") if reg is None else reg,
@@ -179,12 +215,14 @@ def _table(runs: list[Run]) -> tuple[list[dict[str, Any]], str]:
     groups = _sorted_groups(group_runs(runs))
     configs = [g[0].config for g in groups]
     rows: list[dict[str, Any]] = []
-    overview, sections = [], []
+    overview, sections, labelled = [], [], []
     for group, config in zip(groups, configs):
         label = describe_config(config, configs)
         found = estimates([run.summary for run in group])
         rows += csv_rows(label, config, found)
         overview.append([label, len(group), *(_cell(found, name) for name in TRANSFER)])
+        phases = [p.name for p in parse_schedule(str(config.get("schedule")), int(config.get("generations", 0)))]
+        labelled.append((label, len(group), phases, found))
         seeds = ", ".join(str(r.seed) for r in group)
         sections.append(section(f"## {label}", f"{len(group)} seed(s): {seeds}", found))
     header = [f"# Comparison of {len(runs)} run(s) in {len(groups)} configuration(s)", "",
@@ -193,7 +231,7 @@ def _table(runs: list[Run]) -> tuple[list[dict[str, Any]], str]:
               "a phase (C_top: that of the top individual, the best by selection fitness); R/F: "
               "retention/forgetting of an earlier task (pop: best of the population, top: the "
               "current top individual); ACC/BWT/FWT: average final performance, backward and forward transfer.",
-              "", *table(["configuration", "n seeds", *TRANSFER], overview), ""]
+              "", *table(["configuration", "n seeds", *TRANSFER], overview), "", *paper_tables(labelled)]
     return rows, "\n".join(header + sections)
 
 

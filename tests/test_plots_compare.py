@@ -173,6 +173,26 @@ def test_compare_groups_configurations_and_matches_hand_computation(sweep, tmp_p
     assert (es_only / "comparison-diagnostics.png").read_bytes().startswith(PNG)  # the ES log their distance too
 
 
+def test_the_papers_table_has_a_line_per_configuration(sweep):
+    """One line per configuration in the paper's shape, each cell the estimate of its metric
+    over the seeds: red learnt, green learnt by the top individual, red's retention and
+    forgetting at green's end, red when it returns, transfer and the wall time per run."""
+    from lifelong_evo.compare import Estimate, compare_table
+
+    _, markdown = compare_table([sweep])
+    assert ("| configuration | n seeds | red C | green C_top | red R_pop | red F_pop | red R_top | red F_top | "
+            "red C (returns) | ACC_pop | BWT_pop | FWT_pop | wall time per run (min) |") in markdown
+    for algo, label in (("neat", "neat reg=1 red-green-red"), ("openai-es", "openai-es reg=0 red-green-red")):
+        runs = summaries(sweep, algo)
+        red = [next(f for f in s["forgetting"] if f["task"] == "red" and f["at_end_of"] == 1) for s in runs]
+        cells = [Estimate.of([s["current"][0] for s in runs]), Estimate.of([s["current_top"][1] for s in runs]),
+                 *(Estimate.of([r[key] for r in red]) for key in ("R_pop", "F_pop", "R_top", "F_top")),
+                 Estimate.of([s["current"][2] for s in runs]),
+                 *(Estimate.of([s[key] for s in runs]) for key in ("ACC_pop", "BWT_pop", "FWT_pop")),
+                 Estimate.of([s["wall_time_s"] / 60 for s in runs])]
+        assert f"| {label} | {len(runs)} | " + " | ".join(map(str, cells)) + " |" in markdown
+
+
 def test_runs_from_before_the_diagnostics_columns(sweep, tmp_path):
     """Runs written before metrics.csv had the optimisers' diagnostics columns still plot and
     compare as before, without a diagnostics figure."""
