@@ -393,6 +393,7 @@ class ForagingEnv:
         options = {"assert_indirect_indexing": False, "cpp_wrapper": True}
         self._move_and_reach = torch.compile(self._move_and_reach, dynamic=False, options=options)
         self._settle_and_sense = torch.compile(self._settle_and_sense, dynamic=False, options=options)
+        self._graph = None  # a graph captured before would replay the eager step: capture again
 
     def graph_step(self, capture: bool | None = None) -> None:
         """Step so that a CUDA graph can replay the step: one launch instead of a few hundred
