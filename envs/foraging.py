@@ -496,24 +496,21 @@ class ForagingEnv:
         allocator, as capture requires) change the state, which is then put back. One capture
         at a time in a process: evaluation threads capture their environments one by one."""
         with _CAPTURE_LOCK:
-            self._capture_graph_alone(wheels)
-
-    def _capture_graph_alone(self, wheels: torch.Tensor) -> None:
-        self._graph_wheels = wheels.clone()
-        saved = self._arena.clone()
-        side = torch.cuda.Stream(self.device)
-        side.wait_stream(torch.cuda.current_stream(self.device))
-        with torch.cuda.stream(side):
-            for _ in range(GRAPH_WARM_UP_STEPS):
-                self._step_in_place(self._graph_wheels)
-        torch.cuda.current_stream(self.device).wait_stream(side)
-        self._arena.copy_(saved)
-        graph = torch.cuda.CUDAGraph()
-        # records the kernels without running them; thread-local, so that another evaluation
-        # thread stepping its own environment meanwhile does not break the capture
-        with torch.cuda.graph(graph, capture_error_mode="thread_local"):
-            self._graph_outputs = self._step_in_place(self._graph_wheels)
-        self._graph = graph
+            self._graph_wheels = wheels.clone()
+            saved = self._arena.clone()
+            side = torch.cuda.Stream(self.device)
+            side.wait_stream(torch.cuda.current_stream(self.device))
+            with torch.cuda.stream(side):
+                for _ in range(GRAPH_WARM_UP_STEPS):
+                    self._step_in_place(self._graph_wheels)
+            torch.cuda.current_stream(self.device).wait_stream(side)
+            self._arena.copy_(saved)
+            graph = torch.cuda.CUDAGraph()
+            # records the kernels without running them; thread-local, so that another evaluation
+            # thread stepping its own environment meanwhile does not break the capture
+            with torch.cuda.graph(graph, capture_error_mode="thread_local"):
+                self._graph_outputs = self._step_in_place(self._graph_wheels)
+            self._graph = graph
 
     def _move_and_reach(self, wheels, ax, ay, heading, carrying, bx, by, present, done):
         """Steps 1 and 2 of the spec: the moved agents, and the box each agent picks, -1 for none,

@@ -9,7 +9,8 @@ the seed, the speed settings and the output settings of ``RunConfig`` are one) a
                      line per configuration, per schedule of at least two tasks: the first task's
                      C, the second's C_top, the first task's retention and forgetting at the
                      second's end, C of the third task, ACC/BWT/FWT of the population and the
-                     wall time per run), then per configuration the paper's tables in full: current performance C per phase (and C_top, the top individual's),
+                     wall time per run), then per configuration the paper's tables in full:
+                     current performance C per phase (and C_top, the top individual's),
                      retention R and forgetting F of the population and the top individual at
                      each later task end, ACC/BWT/FWT; every value is the mean over seeds with its
                      95% bootstrap interval (2000 resamples, fixed seed; one seed: the value alone)
