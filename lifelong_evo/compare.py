@@ -221,10 +221,11 @@ def _table(runs: list[Run]) -> tuple[list[dict[str, Any]], str]:
         label = describe_config(config, configs)
         found = estimates([run.summary for run in group])
         rows += csv_rows(label, config, found)
-        overview.append([label, len(group), *(_cell(found, name) for name in TRANSFER)])
+        n = seed_count(group)
+        overview.append([label, n, *(_cell(found, name) for name in TRANSFER)])
         phases = [p.name for p in parse_schedule(str(config.get("schedule")), int(config.get("generations", 0)))]
-        labelled.append((label, len(group), phases, found))
-        seeds = ", ".join(str(r.seed) for r in group)
+        labelled.append((label, n, phases, found))
+        seeds = ", ".join(f"{r.seed}{'' if r.finished else ' (unfinished)'}" for r in group)
         sections.append(section(f"## {label}", f"{len(group)} seed(s): {seeds}", found))
     header = [f"# Comparison of {len(runs)} run(s) in {len(groups)} configuration(s)", "",
               "Mean over seeds [95% bootstrap interval, "
@@ -234,6 +235,14 @@ def _table(runs: list[Run]) -> tuple[list[dict[str, Any]], str]:
               "current top individual); ACC/BWT/FWT: average final performance, backward and forward transfer.",
               "", *table(["configuration", "n seeds", *TRANSFER], overview), "", *paper_tables(labelled)]
     return rows, "\n".join(header + sections)
+
+
+def seed_count(group: list[Run]) -> str:
+    """A configuration's seeds for the tables: ``5``, or ``5 (2 unfinished)`` while some of its
+    runs have not ended every task (their later metrics are missing, so a row's cells can rest
+    on fewer seeds than its count)."""
+    unfinished = sum(not run.finished for run in group)
+    return f"{len(group)} ({unfinished} unfinished)" if unfinished else str(len(group))
 
 
 def _sorted_groups(groups: list[list[Run]]) -> list[list[Run]]:

@@ -34,6 +34,7 @@ from .checkpoint import atomic_write_bytes
 from .config import RunConfig
 from .errors import UserError
 from .metrics import GenerationRecord
+from .schedule import parse_schedule
 
 RESOLVED = (("env", "env_resolved"), ("algo_options", "algo_options_resolved"))
 """config.json's settings as given, each with its resolved form written beside it."""
@@ -402,6 +403,12 @@ class Run:
     @property
     def key(self) -> str:
         return config_key(self.config)
+
+    @property
+    def finished(self) -> bool:
+        """Every task of the schedule has ended (summary.json names them all)."""
+        schedule = parse_schedule(str(self.config.get("schedule")), int(self.config.get("generations", 0)))
+        return len(self.summary.get("phases", [])) == len(schedule)
 
     def column(self, name: str) -> np.ndarray:
         """A metrics.csv column as floats over generations (NaN where empty or absent)."""

@@ -193,6 +193,23 @@ def test_the_papers_table_has_a_line_per_configuration(sweep):
         assert f"| {label} | {len(runs)} | " + " | ".join(map(str, cells)) + " |" in markdown
 
 
+def test_unfinished_runs_are_counted_as_such(sweep, tmp_path):
+    """A sweep read while it runs: a run that has not ended every task is named unfinished
+    beside its configuration's seed count, since its later metrics are missing from the means."""
+    from lifelong_evo.compare import compare_table
+
+    copy = tmp_path / "sweep"
+    shutil.copytree(sweep, copy)
+    summary_path = copy / "neat" / "b" / "summary.json"
+    summary = json.loads(summary_path.read_text())
+    summary["phases"] = summary["phases"][:2]  # as written at the end of green
+    summary_path.write_text(json.dumps(summary))
+    _, markdown = compare_table([copy])
+    assert "| neat reg=1 red-green-red | 2 (1 unfinished) |" in markdown
+    assert "| openai-es reg=0 red-green-red | 1 |" in markdown
+    assert "2 seed(s): 1, 2 (unfinished)" in markdown
+
+
 def test_runs_from_before_the_diagnostics_columns(sweep, tmp_path):
     """Runs written before metrics.csv had the optimisers' diagnostics columns still plot and
     compare as before, without a diagnostics figure."""
