@@ -1,12 +1,14 @@
 """Playing episodes: ``rollout``, the one loop in which controllers drive environments (for
-fitness, for the recording's and replay's episodes, for the benchmark), and ``evaluate``, which
+fitness, for the recording's and replay's episodes, for the benchmark), ``evaluate``, which
 scores a whole population on several tasks in one batched environment call (or one per
-evaluation thread, each over a slice of the population)."""
+evaluation thread, each over a slice of the population), and ``evaluate_together``, which plays
+several runs' evaluations in one batch, each giving the fitness ``evaluate`` gives it alone."""
 from __future__ import annotations
 
 import functools
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
+from dataclasses import dataclass
 from typing import Callable, Iterator, Sequence
 
 import torch
@@ -129,3 +131,88 @@ def evaluate(policy: BatchedPolicy, config: ForagingConfig, tasks: Sequence[Task
     episodes = sample_episodes(config, tasks, n_envs, generator, device, dtype)
     totals = run_episodes(policy, config, episodes, device, dtype, compiled, eval_threads, cuda_graphs)
     return totals.view(policy.population_size, len(tasks), n_envs).mean(dim=-1).T
+
+
+@dataclass
+class Evaluation:
+    """One generation's evaluation of one run: ``evaluate``'s arguments."""
+
+    policy: BatchedPolicy
+    config: ForagingConfig
+    tasks: Sequence[Task]
+    n_envs: int
+    generator: torch.Generator
+    device: str = "cpu"
+    compiled: bool = False
+    eval_threads: int = 1
+    cuda_graphs: bool = False
+
+    def run(self) -> torch.Tensor:
+        return evaluate(self.policy, self.config, self.tasks, self.n_envs, self.generator, self.device,
+                        compiled=self.compiled, eval_threads=self.eval_threads, cuda_graphs=self.cuda_graphs)
+
+    def batch(self) -> tuple:
+        """What evaluations must share to be played in one environment batch."""
+        return self.config, str(self.device), self.compiled, self.cuda_graphs
+
+
+def evaluate_together(evaluations: Sequence[Evaluation]) -> list[torch.Tensor]:
+    """The fitness of every evaluation (as ``Evaluation.run`` returns it with one evaluation
+    thread), with those that share an environment configuration, device and step settings played
+    in one batch: each draws its episodes from its own generator, as ``evaluate`` does, and its
+    controllers see only its environments, in the shapes they would see alone. Environments never
+    affect each other, so each fitness is the one its run gets alone; one batch fills a GPU
+    better than several small ones (``--eval-threads`` is not used: one batch is one thread)."""
+    fitness: list[torch.Tensor | None] = [None] * len(evaluations)
+    batches: dict[tuple, list[int]] = {}
+    for index, evaluation in enumerate(evaluations):
+        batches.setdefault(evaluation.batch(), []).append(index)
+    for indices in batches.values():
+        members = [evaluations[i] for i in indices]
+        for i, result in zip(indices, _play_together(members)):
+            fitness[i] = result
+    return fitness
+
+
+def _play_together(evaluations: Sequence[Evaluation]) -> list[torch.Tensor]:
+    first = evaluations[0]
+    states, parts = [], []
+    for evaluation in evaluations:
+        episodes = sample_episodes(evaluation.config, evaluation.tasks, evaluation.n_envs, evaluation.generator,
+                                   evaluation.device)
+        n_episodes = len(evaluation.tasks) * evaluation.n_envs
+        states.append(episodes.index(torch.arange(n_episodes).repeat(evaluation.policy.population_size)))
+        parts.append((evaluation.policy, n_episodes))
+    together = _Together(parts)
+    env = _env(first.config, together.n_envs, str(first.device), torch.float32, first.compiled, 0, first.cuda_graphs)
+    totals = rollout(together, env, env.reset(state=ForagingState.cat(states)))
+    fitness, start = [], 0
+    for evaluation, (policy, n_episodes) in zip(evaluations, parts):
+        size = policy.population_size * n_episodes
+        per_controller = totals[start:start + size].view(policy.population_size, len(evaluation.tasks),
+                                                         evaluation.n_envs)
+        fitness.append(per_controller.mean(dim=-1).T)
+        start += size
+    return fitness
+
+
+class _Together:
+    """Several runs' policies as one over a batch that holds each run's environments in turn
+    (``rollout`` sees one controller driving them all): each policy gets its own environments'
+    observations, population-major as ``rollout`` hands them to it alone."""
+
+    population_size = 1
+
+    def __init__(self, parts: Sequence[tuple[BatchedPolicy, int]]):
+        self.parts = parts  # (policy, episodes per controller)
+        self.n_envs = sum(policy.population_size * n for policy, n in parts)
+
+    def __call__(self, observations: torch.Tensor) -> torch.Tensor:
+        flat = observations[0]  # (n_envs, agents, obs_dim)
+        outputs, start = [], 0
+        for policy, n_episodes in self.parts:
+            size = policy.population_size * n_episodes
+            own = flat[start:start + size].view(policy.population_size, n_episodes, *flat.shape[1:])
+            outputs.append(policy(own).reshape(size, *flat.shape[1:-1], -1))
+            start += size
+        return torch.cat(outputs)[None]

@@ -5,13 +5,18 @@ tell, record; a checkpoint at intervals and at every task end.
 A run continues bit for bit from a checkpoint (``--resume``): everything random comes from the
 optimiser's state and the run's one torch generator, both checkpointed; recorded episodes draw
 from seeds of their own.
+
+``lifelong`` is the loop itself, a generator that hands out each generation's evaluation and is
+sent its fitness; ``run`` plays it alone, ``run_together`` plays several runs in step, their
+evaluations in one environment batch per generation (``evaluate_together``), each run with its own
+optimiser, random streams, run directory and checkpoints, and its numbers the same as alone.
 """
 from __future__ import annotations
 
 import sys
 import time
 from dataclasses import dataclass, field
-from typing import Any, Iterator
+from typing import Any, Generator, Iterator, Sequence
 
 import torch
 
@@ -21,7 +26,7 @@ from . import checkpoint
 from .config import RunConfig, check_device
 from .episodes import play_episodes
 from .errors import UserError
-from .evaluate import evaluate, update_threads
+from .evaluate import Evaluation, evaluate_together, update_threads
 from .metrics import FitnessStats, GenerationRecord, Retention, retention, summarise
 from .progress import Progress
 from .recording import Recorder
@@ -46,10 +51,72 @@ class LoopState:
     wall_time_s: float = 0.0
 
 
+Lifelong = Generator[Evaluation, torch.Tensor, dict[str, Any]]
+"""A run in progress: yields each generation's evaluation, is sent its fitness ``(tasks, population)``
+and returns the summary."""
+
+
 def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: bool = False,
         recorder: Recorder | None = None, progress: str | None = None) -> dict[str, Any]:
     """Run (or continue) the lifelong experiment ``config`` into ``run_dir``; returns the summary.
     ``progress``: a ``progress.MODES`` display on stderr, None for the stream's default."""
+    return run_alone(lifelong(config, run_dir, resume=resume, overwrite=overwrite, recorder=recorder,
+                              progress=progress))
+
+
+def run_alone(steps: Lifelong) -> dict[str, Any]:
+    """Play one run (a ``lifelong`` generator) to its end, each evaluation on its own; returns the summary."""
+    try:
+        evaluation = next(steps)
+        while True:
+            evaluation = steps.send(evaluation.run())
+    except StopIteration as finished:
+        return finished.value
+    finally:
+        steps.close()  # interrupted between generations: the loop closes its logs and recording
+
+
+def run_together(runs: Sequence[Lifelong]) -> Iterator[tuple[int, dict[str, Any] | Exception]]:
+    """Play several runs (``lifelong`` generators) in step, each generation's evaluations in one
+    environment batch; yields ``(index, summary)`` as each run finishes, or ``(index, error)``
+    where one fails (the others go on)."""
+    pending: dict[int, Evaluation] = {}
+    try:
+        for index, steps in enumerate(runs):
+            outcome = _advance(steps, None)
+            if isinstance(outcome, Evaluation):
+                pending[index] = outcome
+            else:
+                yield index, outcome
+        while pending:
+            indices = list(pending)
+            for index, fitness in zip(indices, evaluate_together([pending[i] for i in indices])):
+                outcome = _advance(runs[index], fitness)
+                if isinstance(outcome, Evaluation):
+                    pending[index] = outcome
+                else:
+                    del pending[index]
+                    yield index, outcome
+    finally:
+        for steps in runs:
+            steps.close()
+
+
+def _advance(steps: Lifelong, fitness: torch.Tensor | None) -> Evaluation | dict[str, Any] | Exception:
+    """The run's next evaluation after ``fitness`` (None: its first), or its summary once it ends,
+    or the error that stopped it."""
+    try:
+        return steps.send(fitness)
+    except StopIteration as finished:
+        return finished.value
+    except Exception as error:  # noqa: BLE001 - run_together reports it; the other runs go on
+        return error
+
+
+def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: bool = False,
+             recorder: Recorder | None = None, progress: str | None = None) -> Lifelong:
+    """The lifelong loop of ``run``, as a generator that yields each generation's ``Evaluation``
+    and is sent its fitness."""
     check_device(config.device)  # a resumed run or a sweep's trial may land on a machine without it
     torch.set_num_threads(config.threads)
     phases = config.phases()
@@ -89,9 +156,9 @@ def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: 
 
             with update_threads(config.threads, config.eval_threads):
                 policy = optimizer.ask()
-            fitness = evaluate(policy, env_config, [phase.task, *others], config.evals, generator, config.device,
-                               compiled=config.compile, eval_threads=config.eval_threads,
-                               cuda_graphs=config.cuda_graphs)
+            fitness = yield Evaluation(policy, env_config, [phase.task, *others], config.evals, generator,
+                                       config.device, compiled=config.compile, eval_threads=config.eval_threads,
+                                       cuda_graphs=config.cuda_graphs)
             raw = fitness[0]
             regularised = optimizer.regularise(raw)
             # the top individual is the one selection favours, as in the paper's code: with a

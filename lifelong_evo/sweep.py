@@ -25,6 +25,11 @@ The comparison adds the model-specific lambda ("m.s. reg", ``lifelong_evo.compar
 grid varies lambda: per configuration without lambda and seed, the lambda whose top individual is
 best at the second task and keeps the first (``model_specific_lambda.md``/``.json``).
 
+``--together`` runs every trial in this process instead, without Ray: each generation, the
+trials' evaluations are played in one environment batch (``loop.run_together``), each trial with
+its own optimiser, random streams, run directory and checkpoints and the numbers it gets alone.
+One batch fills a GPU better than many small ones; its trials need ``--eval-threads 1``.
+
 Ray: by default a local Ray with one CPU per core; each trial reserves ``--threads`` times ``--eval-threads``
 CPUs (1 unless told otherwise) and ``--gpus-per-trial`` GPUs (runs then use ``--device cuda``). ``--address
 HOST:PORT`` (or ``auto``) runs on an existing cluster (``ray start --head`` on one machine,
@@ -86,6 +91,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="run on an existing Ray cluster (or 'auto'); default: a local Ray for the sweep")
     parser.add_argument("--retries", type=int, default=1,
                         help="re-run a trial whose worker died this many times, from its checkpoint (default 1)")
+    parser.add_argument("--together", action="store_true",
+                        help="run the trials in this process, without Ray, their evaluations in one environment "
+                             "batch per generation (for one GPU; needs --eval-threads 1)")
     parser.add_argument("--overwrite", action="store_true", help="restart every trial, finished or not")
     parser.add_argument("--dry-run", action="store_true", help="list the trials and their state, run nothing")
 
@@ -97,18 +105,23 @@ def _one_line(error: BaseException) -> str:
     return f"{type(error).__name__}: {lines[0] if lines else ''}".rstrip(": ")
 
 
+def trial_run(config_values: dict[str, Any], path: str, overwrite: bool) -> loop.Lifelong:
+    """One trial's loop, as ``python -m lifelong_evo run`` would start it (resuming when ``path``
+    holds a run)."""
+    run_dir = RunDir(path)
+    resume = not overwrite and run_dir.config.exists()
+    # a resumed trial continues with the settings it was created with, as run --resume does
+    # (trial_state found them equal, perhaps with a default stated in one and left out in the other)
+    config = run_dir.read_config() if resume else RunConfig.from_dict(config_values)
+    recorder = RerunRecorder.for_run(run_dir, config, resume=resume) if config.record else None
+    return loop.lifelong(config, run_dir, resume=resume, overwrite=overwrite, recorder=recorder, progress="off")
+
+
 def run_trial(config_values: dict[str, Any], path: str, overwrite: bool) -> dict[str, Any]:
-    """One trial, as ``python -m lifelong_evo run`` would do it (resuming when ``path`` holds a run);
-    never raises: an error comes back as ``{"status": "failed", "error": one line}``."""
+    """One trial alone; never raises: an error comes back as ``{"status": "failed", "error": one line}``."""
     started = time.monotonic()
     try:
-        run_dir = RunDir(path)
-        resume = not overwrite and run_dir.config.exists()
-        # a resumed trial continues with the settings it was created with, as run --resume does
-        # (trial_state found them equal, perhaps with a default stated in one and left out in the other)
-        config = run_dir.read_config() if resume else RunConfig.from_dict(config_values)
-        recorder = RerunRecorder.for_run(run_dir, config, resume=resume) if config.record else None
-        summary = loop.run(config, run_dir, resume=resume, overwrite=overwrite, recorder=recorder, progress="off")
+        summary = loop.run_alone(trial_run(config_values, path, overwrite))
         return {"status": "done", "error": "", "wall_time_s": summary["wall_time_s"]}
     except Exception as error:  # noqa: BLE001 - the driver records it and goes on
         return {"status": "failed", "error": _one_line(error), "wall_time_s": time.monotonic() - started}
@@ -327,6 +340,8 @@ def main(args: argparse.Namespace) -> int:
             _print(f"failed  {trial.name}: {trial.error}")
         elif trial.name in resuming:
             _print(f"resume  {trial.name} (from its last checkpoint)")
+    if args.together:
+        _check_together(args, to_run, sweep_dir)
     if args.dry_run:
         for trial in to_run:
             _print(f"would run {trial.name}")
@@ -340,7 +355,9 @@ def main(args: argparse.Namespace) -> int:
     write_trials_csv(sweep_dir, grid)
     interrupted = False
     try:
-        if to_run:
+        if to_run and args.together:
+            _run_together(grid, to_run, sweep_dir, args.overwrite)
+        elif to_run:
             _run_trials(args, grid, to_run, sweep_dir, address)
     except KeyboardInterrupt:  # Ctrl-C: running trials were cancelled; their checkpoints stay
         interrupted = True
@@ -356,6 +373,49 @@ def main(args: argparse.Namespace) -> int:
     _print(f"\n{counts['done']} done, {counts['failed']} failed; results in {sweep_dir} (trials.csv, sweep.json"
            + (", comparison.md/.csv)" if counts["done"] else ")"))
     return 1 if counts["failed"] else 0
+
+
+def _check_together(args: argparse.Namespace, to_run: list[Trial], sweep_dir: Path) -> None:
+    """Refuse, before anything is written, what ``--together`` cannot do as asked."""
+    if args.address or args.gpus_per_trial or args.workers:
+        raise UserError("--together runs every trial in this process, without Ray: drop --address, "
+                        "--gpus-per-trial and --workers")
+    for trial in to_run:
+        run_dir = RunDir(sweep_dir / trial.name)
+        config = run_dir.read_config() if not args.overwrite and run_dir.config.exists() else trial.config
+        if config.eval_threads != 1:
+            # one batch is one thread: another count would change the rounding of the trial's numbers
+            raise UserError(f"--together plays each generation in one batch, but trial {trial.name} has "
+                            f"--eval-threads {config.eval_threads}: pass --eval-threads 1")
+
+
+def _run_together(grid: Grid, to_run: list[Trial], sweep_dir: Path, overwrite: bool) -> None:
+    """Run ``to_run`` in this process, in step (``loop.run_together``), recording each as it ends."""
+    started = time.monotonic()
+    finished = len(grid.trials) - len(to_run)
+
+    def record(trial: Trial, result: dict[str, Any] | Exception) -> None:
+        nonlocal finished
+        if isinstance(result, Exception):
+            trial.status, trial.error = "failed", _one_line(result)
+            trial.wall_time_s = time.monotonic() - started
+        else:
+            trial.status, trial.error, trial.wall_time_s = "done", "", result["wall_time_s"]
+        finished += 1
+        line = f"[{finished}/{len(grid.trials)}] {trial.status:<6} {trial.name} ({duration(trial.wall_time_s)})"
+        _print(line + (f": {trial.error}" if trial.error else ""))
+        write_trials_csv(sweep_dir, grid)
+
+    runs, trials = [], []
+    for trial in to_run:
+        try:
+            runs.append(trial_run(trial.config.to_dict(), str(sweep_dir / trial.name), overwrite))
+            trials.append(trial)
+        except Exception as error:  # noqa: BLE001 - recorded; the others go on
+            record(trial, error)
+    _print(f"running {len(runs)} trial(s) together in this process")
+    for index, result in loop.run_together(runs):
+        record(trials[index], result)
 
 
 def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep_dir: Path,

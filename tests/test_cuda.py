@@ -168,3 +168,18 @@ def test_command_line_run_with_cuda_graphs_gives_the_same_numbers(tmp_path):
     assert main([*argv, "--name", "plain"]) == 0
     assert main([*argv, "--name", "graphed", "--cuda-graphs"]) == 0
     assert (tmp_path / "plain/metrics.csv").read_text() == (tmp_path / "graphed/metrics.csv").read_text()
+
+
+def test_evaluations_together_on_cuda_give_each_its_fitness_alone():
+    """Two populations of other sizes in one batch on the device: each gets the fitness it gets
+    alone (both with one evaluation thread)."""
+    from lifelong_evo.evaluate import Evaluation, evaluate_together
+
+    config = ForagingConfig(duration=200)
+    evaluations = [Evaluation(_random_mlp(size, config, "cuda"), config, tasks, 3,
+                              torch.Generator().manual_seed(seed), "cuda")
+                   for size, tasks, seed in ((12, [TASKS["red"]], 1), (20, [TASKS["green"], TASKS["red"]], 2))]
+    alone = [Evaluation(e.policy, config, e.tasks, 3, torch.Generator().manual_seed(seed), "cuda").run()
+             for e, seed in zip(evaluations, (1, 2))]
+    for together, want in zip(evaluate_together(evaluations), alone):
+        assert torch.equal(together, want)

@@ -355,6 +355,42 @@ def test_a_run_from_before_a_setting_existed_resumes(smoke_runs, tmp_path):
     _same_numbers(run, smoke_runs / "neat")
 
 
+def test_runs_played_together_give_the_numbers_they_give_alone(tmp_path):
+    """Three runs in step, their evaluations in one batch each generation: other algorithms,
+    population sizes and schedule lengths, so that at times one run evaluates green while another
+    evaluates red, or scores earlier tasks while another does not. Each writes the files it
+    writes alone, byte for byte, and a run that fails stops alone."""
+    from lifelong_evo.config import resolve
+    from lifelong_evo.loop import lifelong, run, run_together
+    from lifelong_evo.rundir import RunDir
+
+    settings = [{"algo": "neat", "reg": 2.0, "seed": 1, "generations": 3},
+                {"algo": "openai-es", "seed": 2, "generations": 4, "population": 12},
+                {"algo": "sep-cmaes", "reg": 5.0, "seed": 3, "generations": 2}]
+    configs = [resolve("smoke", {**values, "record": False, "env": {"duration": 60}}) for values in settings]
+    for index, config in enumerate(configs):
+        run(config, RunDir(tmp_path / "alone" / str(index)), progress="off")
+    broken = RunDir(tmp_path / "together" / "broken")
+    broken.create(overwrite=False)
+    broken.write_config(configs[0])  # a run directory that --resume cannot continue: no matching settings
+    runs = [lifelong(config, RunDir(tmp_path / "together" / str(index)), progress="off")
+            for index, config in enumerate(configs)]
+    runs.insert(1, lifelong(configs[1], broken, resume=True, progress="off"))
+    outcomes = dict(run_together(runs))
+    assert isinstance(outcomes.pop(1), Exception)
+    assert all(isinstance(summary, dict) for summary in outcomes.values())
+    for index in range(len(configs)):
+        for name in ("metrics.csv", "controllers/final-top.json", "summary.json"):
+            if name == "summary.json":  # its wall time differs
+                alone, together = (json.loads((tmp_path / where / str(index) / name).read_text())
+                                   for where in ("alone", "together"))
+                alone.pop("wall_time_s"), together.pop("wall_time_s")
+                assert together == alone, index
+                continue
+            assert (tmp_path / "together" / str(index) / name).read_bytes() == \
+                (tmp_path / "alone" / str(index) / name).read_bytes(), (index, name)
+
+
 def test_resume_refuses_changed_settings(smoke_runs, capsys):
     assert main(["--resume", "--out", str(smoke_runs), "--name", "neat", "--population", "50"]) == 2
     assert "stored settings" in capsys.readouterr().err

@@ -321,3 +321,28 @@ def test_a_trial_sharing_the_machine_repeats_a_run_alone(smoke_sweep, tmp_path):
     assert main(["--algo", "neat", "--seed", "2", "--generations", "2", *SMOKE, "--threads", "1",
                  "--out", str(tmp_path), "--name", "alone", "--quiet"]) == 0
     assert (tmp_path / "alone/metrics.csv").read_bytes() == (sweep_dir / "neat-seed2/metrics.csv").read_bytes()
+
+
+def test_trials_run_together_repeat_the_trials_run_apart(smoke_sweep, tmp_path):
+    """--together plays the four trials' evaluations in one batch per generation, in this process;
+    each trial writes the numbers it wrote as a Ray trial of its own."""
+    sweep_dir, argv = smoke_sweep
+    together = [*argv[:argv.index("--out")], "--out", str(tmp_path), "--name", "smoke", "--together"]
+    assert main(together) == 0
+    trials = _trials(tmp_path / "smoke")
+    assert {row["status"] for row in trials.values()} == {"done"}
+    for name in trials:
+        for file in ("metrics.csv", "controllers/final-top.json"):
+            assert (tmp_path / "smoke" / name / file).read_bytes() == (sweep_dir / name / file).read_bytes(), (name, file)
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--eval-threads", "2"], "has --eval-threads 2: pass --eval-threads 1"),
+    (["--workers", "2"], "--together runs every trial in this process, without Ray: drop --address"),
+])
+def test_together_refuses_what_it_cannot_do_before_writing(extra, message, tmp_path, capsys):
+    argv = ["sweep", "--algo", "neat", "--seed", "2", *SMOKE, "--out", str(tmp_path), "--name", "t", "--together",
+            *extra]
+    assert main(argv) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "t").exists()
