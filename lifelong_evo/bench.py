@@ -5,7 +5,8 @@ at several batch sizes, with the split between sensing, controller and dynamics.
 ``--eval-threads N`` splits the controllers over N threads as the lifelong run's evaluator does.
 With ``--algo NAME``: one full generation of that optimiser (ask, evaluate, regularise, tell);
 with ``--compile`` as well, first eagerly, then compiled. ``--cuda-graphs`` (with ``--device cuda``)
-replays the environment's step as a CUDA graph (``ForagingEnv.graph_step``).
+replays the environment's step as a CUDA graph (``ForagingEnv.graph_step``); ``--runs N`` times N
+runs at once, evaluated in one batch (``sweep --together``), the figures being for all N.
 The last line is always ``s_per_generation=<seconds>`` for the chosen workload.
 ``benchmarks/reference_step.py`` (a script outside the package) runs the environment part on
 another step: ``main(env_class=...)``.
@@ -22,7 +23,7 @@ from algorithms import make_optimizer
 from algorithms.base import BatchedPolicy
 from algorithms.mlp import MLPPolicy, layer_sizes_for, n_parameters
 from envs import TASKS, ForagingConfig, ForagingEnv
-from lifelong_evo.evaluate import evaluate, rollout, shard_bounds, update_threads
+from lifelong_evo.evaluate import Evaluation, evaluate_together, rollout, shard_bounds, update_threads
 
 WARM_UP_STEPS = 3
 """Untimed steps before the timed ones (they compile the step under --compile)."""
@@ -110,27 +111,33 @@ def _split(result: dict) -> str:
 
 
 def bench_algo(algo: str, population: int, n_envs: int, generations: int, device: str, compiled: bool,
-               eval_threads: int = 1, cuda_graphs: bool = False) -> dict:
-    """Time full generations of ``algo`` at the paper's size (after one warm-up generation)."""
+               eval_threads: int = 1, cuda_graphs: bool = False, runs: int = 1) -> dict:
+    """Time full generations of ``algo`` at the paper's size (after one warm-up generation); with
+    ``runs`` > 1, of that many runs (seeds 0, 1, ...) at once, their evaluations played together
+    in one batch as ``sweep --together`` plays them (``evaluate_together``)."""
     config = ForagingConfig()
-    optimizer = make_optimizer(algo, obs_dim=config.obs_dim, population_size=population, seed=0, device=device)
-    generator = torch.Generator().manual_seed(0)
+    optimizers = [make_optimizer(algo, obs_dim=config.obs_dim, population_size=population, seed=seed, device=device)
+                  for seed in range(runs)]
+    generators = [torch.Generator().manual_seed(seed) for seed in range(runs)]
     totals = {"ask": 0.0, "evaluate": 0.0, "tell": 0.0}
     threads = torch.get_num_threads()
     for generation in range(generations + 1):
         with update_threads(threads, eval_threads):  # as the lifelong loop does
-            policy, t_ask = _timed(optimizer.ask)
-        fitness, t_eval = _timed(lambda: evaluate(policy, config, [TASKS["red"]], n_envs, generator, device,
-                                                  compiled=compiled, eval_threads=eval_threads,
-                                                  cuda_graphs=cuda_graphs)[0])
+            policies, t_ask = _timed(lambda: [optimizer.ask() for optimizer in optimizers])
+        evaluations = [Evaluation(policy, config, [TASKS["red"]], n_envs, generator, device, compiled=compiled,
+                                  eval_threads=eval_threads, cuda_graphs=cuda_graphs)
+                       for policy, generator in zip(policies, generators)]
+        play = (lambda: [evaluations[0].run()]) if runs == 1 else (lambda: evaluate_together(evaluations))
+        fitness, t_eval = _timed(play)
         with update_threads(threads, eval_threads):
-            _, t_tell = _timed(lambda: optimizer.tell(fitness, optimizer.regularise(fitness)))
+            _, t_tell = _timed(lambda: [optimizer.tell(f[0], optimizer.regularise(f[0]))
+                                        for optimizer, f in zip(optimizers, fitness)])
         if generation:  # the first generation warms up
             totals["ask"] += t_ask
             totals["evaluate"] += t_eval
             totals["tell"] += t_tell
     per = {k: v / generations for k, v in totals.items()}
-    per["controllers"] = policy.population_size
+    per["controllers"] = policies[0].population_size
     per["s_per_generation"] = sum(v for k, v in per.items() if k != "controllers")
     return per
 
@@ -146,6 +153,9 @@ def main(argv=None, env_class: type = ForagingEnv) -> None:
     parser.add_argument("--population", type=int, default=300, help="population size (--algo)")
     parser.add_argument("--evals", type=int, default=10, help="environments per controller (--algo)")
     parser.add_argument("--generations", type=int, default=2, help="generations timed after a warm-up (--algo)")
+    parser.add_argument("--runs", type=int, default=1,
+                        help="time this many runs at once, evaluated in one batch as sweep --together does "
+                             "(--algo; the figures are for all of them)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--eval-threads", type=int, default=1,
                         help="threads that each play a slice of the controllers (use with --compile --threads 1)")
@@ -157,6 +167,8 @@ def main(argv=None, env_class: type = ForagingEnv) -> None:
     config = ForagingConfig()
     if env_class is not ForagingEnv and args.algo:
         parser.error(f"{env_class.__name__} is timed as the environment step alone: drop --algo")
+    if args.runs < 1 or (args.runs > 1 and (not args.algo or args.eval_threads != 1)):
+        parser.error("--runs N times N runs of an --algo in one batch: give --algo, N >= 1 and --eval-threads 1")
     if args.cuda_graphs and (env_class is not ForagingEnv or not args.device.startswith("cuda")):
         parser.error("--cuda-graphs replays ForagingEnv's step on a GPU: add --device cuda, or drop --cuda-graphs")
     if not 1 <= args.steps <= config.duration - WARM_UP_STEPS:
@@ -170,8 +182,9 @@ def main(argv=None, env_class: type = ForagingEnv) -> None:
         # under --compile the eager figure comes first, so that one call shows what compiling buys
         for compiled in ([False, True] if args.compile else [False]):
             result = bench_algo(args.algo, args.population, args.evals, args.generations, args.device, compiled,
-                                args.eval_threads, args.cuda_graphs)
-            print(f"algo={args.algo} compile={'on' if compiled else 'off'} controllers={result['controllers']} "
+                                args.eval_threads, args.cuda_graphs, args.runs)
+            runs = f"runs={args.runs} together, " if args.runs > 1 else ""
+            print(f"algo={args.algo} compile={'on' if compiled else 'off'} {runs}controllers={result['controllers']} "
                   f"x {args.evals} envs x 500 steps: ask {result['ask']:.3f} s, evaluate {result['evaluate']:.3f} s, "
                   f"regularise+tell {result['tell']:.3f} s; {result['s_per_generation']:.3f} s/generation")
         print(f"s_per_generation={result['s_per_generation']:.3f}")

@@ -19,6 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.mark.parametrize("argv", [
     ["--envs", "40", "--also", "20", "--steps", "3", "--eval-threads", "2"],
     ["--algo", "openai-es", "--population", "4", "--evals", "1", "--generations", "1", "--eval-threads", "2"],
+    ["--algo", "neat", "--population", "4", "--evals", "1", "--generations", "1", "--runs", "3"],
 ])
 def test_last_line_is_seconds_per_generation(argv, capsys):
     main(argv)
@@ -32,7 +33,8 @@ def test_algo_under_compile_prints_the_eager_figure_first(monkeypatch, capsys):
     import lifelong_evo.bench as bench
     calls = []
 
-    def fake_bench_algo(algo, population, n_envs, generations, device, compiled, eval_threads=1, cuda_graphs=False):
+    def fake_bench_algo(algo, population, n_envs, generations, device, compiled, eval_threads=1, cuda_graphs=False,
+                        runs=1):
         calls.append(compiled)
         seconds = 0.5 if compiled else 2.0
         return {"ask": 0.0, "evaluate": seconds, "tell": 0.0, "controllers": population,
@@ -103,3 +105,10 @@ def test_cuda_graphs_are_refused_off_a_gpu(capsys):
     with pytest.raises(SystemExit) as stop:
         main(["--cuda-graphs"])
     assert stop.value.code == 2 and "add --device cuda, or drop --cuda-graphs" in capsys.readouterr().err
+
+
+def test_runs_together_need_an_algorithm_and_one_thread(capsys):
+    for argv in (["--runs", "2"], ["--algo", "neat", "--runs", "2", "--eval-threads", "2"], ["--runs", "0"]):
+        with pytest.raises(SystemExit) as stop:
+            main(argv)
+        assert stop.value.code == 2 and "--runs N times N runs" in capsys.readouterr().err
