@@ -346,3 +346,28 @@ def test_together_refuses_what_it_cannot_do_before_writing(extra, message, tmp_p
     assert main(argv) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "t").exists()
+
+
+def test_together_stopped_by_ctrl_c_resumes_to_the_same_numbers(smoke_sweep, tmp_path, monkeypatch, capsys):
+    """Ctrl-C in the middle of a --together sweep keeps every trial's checkpoints; the same command
+    again resumes them all and writes what the uninterrupted Ray sweep wrote."""
+    import lifelong_evo.loop as loop
+
+    sweep_dir, argv = smoke_sweep
+    together = [*argv[:argv.index("--out")], "--out", str(tmp_path), "--name", "smoke", "--together"]
+    real, calls = loop.evaluate_together, []
+
+    def stopped_after_three(evaluations):
+        calls.append(1)
+        if len(calls) > 3:
+            raise KeyboardInterrupt
+        return real(evaluations)
+
+    monkeypatch.setattr(loop, "evaluate_together", stopped_after_three)
+    assert main(together) == 130
+    assert "run the same command again" in capsys.readouterr().err
+    assert {row["status"] for row in _trials(tmp_path / "smoke").values()} == {"pending"}
+    monkeypatch.setattr(loop, "evaluate_together", real)
+    assert main(together) == 0
+    for name in _trials(tmp_path / "smoke"):
+        assert (tmp_path / "smoke" / name / "metrics.csv").read_bytes() == (sweep_dir / name / "metrics.csv").read_bytes()
