@@ -16,7 +16,7 @@ from __future__ import annotations
 import sys
 import time
 from dataclasses import dataclass, field
-from typing import Any, Generator, Iterator, Sequence
+from typing import Any, Callable, Generator, Iterator, Sequence
 
 import torch
 
@@ -76,10 +76,12 @@ def run_alone(steps: Lifelong) -> dict[str, Any]:
         steps.close()  # interrupted between generations: the loop closes its logs and recording
 
 
-def run_together(runs: Sequence[Lifelong]) -> Iterator[tuple[int, dict[str, Any] | Exception]]:
+def run_together(runs: Sequence[Lifelong], after_generation: Callable[[int], None] | None = None
+                 ) -> Iterator[tuple[int, dict[str, Any] | Exception]]:
     """Play several runs (``lifelong`` generators) in step, each generation's evaluations in one
     environment batch; yields ``(index, summary)`` as each run finishes, or ``(index, error)``
-    where one fails (the others go on)."""
+    where one fails (the others go on). ``after_generation(runs still going)`` is called after
+    each generation (for a status line)."""
     pending: dict[int, Evaluation] = {}
     try:
         for index, steps in enumerate(runs):
@@ -97,6 +99,8 @@ def run_together(runs: Sequence[Lifelong]) -> Iterator[tuple[int, dict[str, Any]
                 else:
                     del pending[index]
                     yield index, outcome
+            if after_generation is not None:
+                after_generation(len(pending))
     finally:
         for steps in runs:
             steps.close()

@@ -413,9 +413,19 @@ def _run_together(grid: Grid, to_run: list[Trial], sweep_dir: Path, overwrite: b
             trials.append(trial)
         except Exception as error:  # noqa: BLE001 - recorded; the others go on
             record(trial, error)
+    last_line = time.monotonic()
+
+    def status(going: int) -> None:
+        nonlocal last_line
+        if going and time.monotonic() - last_line >= STATUS_EVERY_S:
+            _print(f"[{finished}/{len(grid.trials)}] {going} running together; "
+                   f"{duration(time.monotonic() - started)} so far")
+            last_line = time.monotonic()
+
     _print(f"running {len(runs)} trial(s) together in this process")
-    for index, result in loop.run_together(runs):
+    for index, result in loop.run_together(runs, after_generation=status):
         record(trials[index], result)
+        last_line = time.monotonic()
 
 
 def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep_dir: Path,

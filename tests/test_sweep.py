@@ -323,12 +323,17 @@ def test_a_trial_sharing_the_machine_repeats_a_run_alone(smoke_sweep, tmp_path):
     assert (tmp_path / "alone/metrics.csv").read_bytes() == (sweep_dir / "neat-seed2/metrics.csv").read_bytes()
 
 
-def test_trials_run_together_repeat_the_trials_run_apart(smoke_sweep, tmp_path):
+def test_trials_run_together_repeat_the_trials_run_apart(smoke_sweep, tmp_path, monkeypatch, capsys):
     """--together plays the four trials' evaluations in one batch per generation, in this process;
     each trial writes the numbers it wrote as a Ray trial of its own."""
+    import lifelong_evo.sweep as sweep
+
     sweep_dir, argv = smoke_sweep
     together = [*argv[:argv.index("--out")], "--out", str(tmp_path), "--name", "smoke", "--together"]
+    monkeypatch.setattr(sweep, "STATUS_EVERY_S", 0.0)
     assert main(together) == 0
+    printed = capsys.readouterr().out
+    assert "[0/4] 4 running together;" in printed and "[4/4] done" in printed
     trials = _trials(tmp_path / "smoke")
     assert {row["status"] for row in trials.values()} == {"done"}
     for name in trials:
