@@ -161,8 +161,8 @@ def evaluate_together(evaluations: Sequence[Evaluation]) -> list[torch.Tensor]:
     thread), with those that share an environment configuration, device and step settings played
     in one batch: each draws its episodes from its own generator, as ``evaluate`` does, and its
     controllers see only its environments, in the shapes they would see alone. Environments never
-    affect each other, so each fitness is the one its run gets alone; one batch fills a GPU
-    better than several small ones (``--eval-threads`` is not used: one batch is one thread)."""
+    affect each other, so each fitness is the one its run gets alone. Meant for a GPU, which one
+    run's batch leaves mostly idle (``eval_threads`` is not used: one batch is one thread)."""
     fitness: list[torch.Tensor | None] = [None] * len(evaluations)
     batches: dict[tuple, list[int]] = {}
     for index, evaluation in enumerate(evaluations):
