@@ -78,6 +78,10 @@ class Optimizer(ABC):
     """Registry name, e.g. ``"neat"``."""
     has_regularizer: ClassVar[bool] = True
     """Whether ``reg > 0`` (lambda, the regulariser's strength) means anything for this algorithm."""
+    regularizer_options: ClassVar[tuple[str, ...]] = ()
+    """Options that shape only the regulariser: at ``reg == 0`` they change no controller and no
+    fitness (only the distance diagnostics), so runs that differ in nothing else are one
+    configuration."""
     Options: ClassVar[type[OptimizerOptions]] = OptimizerOptions
     """The options the constructor takes as keyword arguments (none by default)."""
 

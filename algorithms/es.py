@@ -111,6 +111,7 @@ class ESOptimizer(Optimizer):
 
     Options: ClassVar[type[ESOptions]] = ESOptions
     diagnostics: ClassVar[tuple[str, ...]] = ("distance_mean", "distance_std")
+    regularizer_options: ClassVar[tuple[str, ...]] = ("reference", "importance")
     even_population: ClassVar[bool] = False
     """Mirrored sampling needs an even number of samples."""
 

@@ -91,6 +91,7 @@ class NeatOptimizer(Optimizer):
     has_regularizer = True
     Options = NeatOptions
     diagnostics = ("distance_mean", "distance_std", "disabled_fraction")
+    regularizer_options = ("references",)
 
     def __init__(self, *, obs_dim: int, population_size: int, seed: int,
                  reg: float = 0.0, device: str | torch.device = "cpu", **options):

@@ -2,7 +2,8 @@
 
 Finds every run directory (config.json + summary.json) at or under the given paths (so a sweep
 folder works), groups the runs by configuration (``rundir.group_runs``: runs that differ only in
-the seed, the speed settings and the output settings of ``RunConfig`` are one) and writes, to
+the seed, the speed settings and the output settings of ``RunConfig``, or at lambda 0 in the
+regulariser's options, are one) and writes, to
 ``--out`` (default: the one folder given, else ``comparison/``):
 
 ``comparison.md``    an overview (one line per configuration: ACC/BWT/FWT), the paper's table (one
@@ -270,23 +271,36 @@ def selection_score(summary: dict[str, Any]) -> float | None:
 def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]) -> list[dict[str, Any]]:
     """The model-specific lambda: ``runs`` are (config.json dict, summary.json dict, tag) triples;
     for each configuration without lambda that was run with several lambdas, and each of its seeds,
-    the run whose lambda maximises ``selection_score`` (ties: the smaller lambda).
+    the run whose lambda maximises ``selection_score`` (ties: the smaller lambda). A run without
+    regulariser (lambda 0) is a candidate of every such configuration it differs from only in the
+    regulariser's options (``Optimizer.regularizer_options``: L2 and EWC-style importance both
+    choose between their lambdas and none).
 
-    Returns one dict per such configuration: ``config`` (the config of its first chosen run),
-    ``choices``, one per seed in ascending order: ``seed``, ``reg``, ``score``, ``tag``, and
+    Returns one dict per such configuration: ``config`` (the config of one of its regularised
+    runs), ``choices``, one per seed in ascending order: ``seed``, ``reg``, ``score``, ``tag``, and
     ``shared``, the one lambda for every seed: among the lambdas every seed ran, the one whose
     mean ``selection_score`` over the seeds is highest (ties: the smaller lambda), with
     ``means`` (lambda -> that mean); ``None`` where no lambda was run by every seed."""
-    groups: dict[str, dict[str, Any]] = {}
-    for config, summary, tag in runs:
+    def without_lambda(config: dict[str, Any]) -> str:
         rest = {k: v for k, v in configuration_of(config).items() if k != "reg"}
-        group = groups.setdefault(json.dumps(rest, sort_keys=True, default=str),
-                                  {"regs": set(), "by_seed": {}, "configs": {}})
-        group["regs"].add(float(config["reg"]))
-        group["configs"][tag] = config
-        score = selection_score(summary)
-        if score is not None and math.isfinite(score):
-            group["by_seed"].setdefault(config["seed"], []).append((score, float(config["reg"]), tag))
+        return json.dumps(rest, sort_keys=True, default=str)
+
+    groups: dict[str, dict[str, Any]] = {}
+    base_of: dict[str, str] = {}
+    # regularised runs first, so each lambda-0 run finds every configuration it belongs to
+    for config, summary, tag in sorted(runs, key=lambda run: not float(run[0]["reg"])):
+        base = without_lambda({**config, "reg": 0})
+        if float(config["reg"]):
+            keys = [without_lambda(config)]
+            base_of[keys[0]] = base
+        else:
+            keys = [key for key, its_base in base_of.items() if its_base == base] or [base]
+        for key in keys:
+            group = groups.setdefault(key, {"regs": set(), "by_seed": {}, "config": config})
+            group["regs"].add(float(config["reg"]))
+            score = selection_score(summary)
+            if score is not None and math.isfinite(score):
+                group["by_seed"].setdefault(config["seed"], []).append((score, float(config["reg"]), tag))
     result = []
     for group in groups.values():
         if len(group["regs"]) < 2 or not group["by_seed"]:
@@ -304,7 +318,7 @@ def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]
         if means:
             best = max(means, key=lambda reg: (means[reg], -reg))
             shared = {"reg": best, "means": means}
-        result.append({"config": group["configs"][choices[0]["tag"]], "choices": choices, "shared": shared})
+        result.append({"config": group["config"], "choices": choices, "shared": shared})
     return result
 
 

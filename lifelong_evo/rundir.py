@@ -29,6 +29,8 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from algorithms import REGISTRY
+
 from . import checkpoint
 from .checkpoint import atomic_write_bytes
 from .config import RunConfig
@@ -443,11 +445,18 @@ def configuration_of(config: dict[str, Any]) -> dict[str, Any]:
     holds the resolved environment and algorithm options, they stand for the ones given, so a
     default stated and a default left out are one configuration. (A run written before
     ``algo_options_resolved`` existed keeps its options as given: the defaults it ran with may
-    not be today's, as NEAT's ``genetics`` shows.)"""
+    not be today's, as NEAT's ``genetics`` shows.) Without a regulariser (``reg == 0``) the
+    options that shape only the regulariser (``Optimizer.regularizer_options``) are no setting:
+    such runs evolve the same controllers whatever those options say."""
     values = {k: v for k, v in config.items() if k != "versions"}
     for given, resolved in RESOLVED:
         if resolved in values:
             values.pop(given, None)
+    algo = REGISTRY.get(str(values.get("algo")))
+    if algo is not None and not values.get("reg"):
+        for key in ("algo_options", "algo_options_resolved"):
+            if isinstance(values.get(key), dict):
+                values[key] = {k: v for k, v in values[key].items() if k not in algo.regularizer_options}
     return RunConfig.configuration_settings(values)
 
 
@@ -459,18 +468,28 @@ def config_key(config: dict[str, Any]) -> str:
 def config_differences(config: dict[str, Any], others: list[dict[str, Any]]) -> list[str]:
     """What sets ``config`` apart from ``others`` beyond algorithm, lambda and schedule, as
     ``KEY=VALUE`` items: an algorithm option only among runs of the same algorithm, each option
-    and environment setting by itself (``genetics=2.0``, ``env.see_other_agents=True``)."""
+    and environment setting by itself (``genetics=2.0``, ``env.see_other_agents=True``). A
+    regulariser's option only against runs that have one (not those at ``reg == 0``)."""
     mine = configuration_of(config)
     theirs = [configuration_of(o) for o in others]
     same_algo = [t for t, o in zip(theirs, others) if o.get("algo") == config.get("algo")]
+    algo = REGISTRY.get(str(config.get("algo")))
+    regularizer_only = set(algo.regularizer_options) if algo is not None else set()
+
+    def differs(settings: dict[str, Any], name: str, value: Any, is_option: bool) -> bool:
+        if is_option and name in regularizer_only and name not in settings:
+            return False
+        return settings.get(name) != value
+
     differences = []
     for key in sorted(k for k in mine if k not in ("algo", "reg", "schedule")):
         value = mine[key]
-        compared = same_algo if key in ("algo_options", "algo_options_resolved") else theirs
+        is_option = key in ("algo_options", "algo_options_resolved")
+        compared = same_algo if is_option else theirs
         if isinstance(value, dict):
             prefix = "env." if key in ("env", "env_resolved") else ""
             differences += [f"{prefix}{name}={value[name]}" for name in sorted(value)
-                            if any(t.get(key, {}).get(name) != value[name] for t in compared)]
+                            if any(differs(t.get(key, {}), name, value[name], is_option) for t in compared)]
         elif any(t.get(key) != value for t in compared):
             differences.append(f"{key}={value}")
     return differences

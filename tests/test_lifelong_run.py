@@ -12,8 +12,9 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import asdict
+from dataclasses import asdict, fields
 from pathlib import Path
+from typing import Literal, get_args, get_origin, get_type_hints
 
 import pytest
 import torch
@@ -473,6 +474,33 @@ def test_resume_after_sigkill_gives_identical_metrics(tmp_path, algo):
     subprocess.run(_cli("--resume", "--out", str(tmp_path), "--name", "killed", "--quiet", "--no-record"),
                    check=True, env=env, cwd=ROOT)
     assert metrics.read_text() == whole
+
+
+def _another_value(options_class, name: str) -> str:
+    """A value of option ``name`` other than its default, as ``--option`` takes it."""
+    field_ = next(f for f in fields(options_class) if f.name == name)
+    hint = get_type_hints(options_class)[name]
+    if get_origin(hint) is Literal:
+        return next(choice for choice in get_args(hint) if choice != field_.default)
+    return str(field_.default + 2)
+
+
+@pytest.mark.parametrize("algo", [name for name, cls in REGISTRY.items() if cls.regularizer_options])
+def test_without_a_regulariser_its_options_change_no_controller(tmp_path, algo):
+    """Why ``compare`` holds runs at lambda 0 that differ only in ``regularizer_options`` for one
+    configuration: every number but the regulariser's distance diagnostics is the same."""
+    cls = REGISTRY[algo]
+    changed = [arg for name in cls.regularizer_options
+               for arg in ("--option", f"{name}={_another_value(cls.Options, name)}")]
+    for name, extra in (("default", []), ("changed", changed)):
+        assert main(["--algo", algo, "--preset", "smoke", "--schedule", "red:2,green:4,red:2", "--env", "duration=60",
+                     *extra, "--out", str(tmp_path), "--name", name, "--no-record", "--quiet"]) == 0
+    default, changed_rows = (_rows(tmp_path / f"{name}/metrics.csv") for name in ("default", "changed"))
+    distances = {"distance_mean", "distance_std"}
+    assert [{k: v for k, v in row.items() if k not in distances} for row in default] == \
+        [{k: v for k, v in row.items() if k not in distances} for row in changed_rows]
+    # the options did reach the regulariser: its distances after the drift differ
+    assert [row["distance_mean"] for row in default][2:] != [row["distance_mean"] for row in changed_rows][2:]
 
 
 def test_reg_for_an_algorithm_without_regulariser(monkeypatch, tmp_path, capsys):

@@ -114,6 +114,24 @@ def test_runs_written_before_resolved_options_keep_their_options_as_given():
     assert _groups([old, _config(seed=2), _config(seed=3, resolved=False)]) == [[0, 2], [1]]
 
 
+def test_without_a_regulariser_its_options_make_no_configuration():
+    """At lambda 0 the importance and the reference change no controller (test_lifelong_run), so
+    an unregularised run is labelled and grouped without them; at lambda > 0 they set runs apart."""
+    none_l2 = _config(algo="sep-cmaes", reg=0.0)
+    none_ewc = _config(algo="sep-cmaes", seed=2, reg=0.0, given={"importance": "ewc", "reference": "best"})
+    l2, ewc = (_config(algo="sep-cmaes", reg=100.0, given={"importance": i}) for i in ("l2", "ewc"))
+    neat_one, neat_three = _config(reg=0.0), _config(seed=2, reg=0.0, given={"references": 3})
+    configs = [none_l2, none_ewc, l2, ewc, neat_one, neat_three, _config(reg=11.0, given={"references": 3})]
+    assert _groups(configs) == [[0, 1], [2], [3], [4, 5], [6]]
+    assert [describe_config(c, configs) for c in (none_ewc, l2, ewc, neat_one)] == [
+        "sep-cmaes reg=0 red-green-red", "sep-cmaes reg=100 red-green-red importance=l2",
+        "sep-cmaes reg=100 red-green-red importance=ewc", "neat reg=0 red-green-red"]
+    # a sweep over lambda with one importance: nothing to name but lambda
+    over_lambda = [none_l2, l2, _config(algo="sep-cmaes", reg=10.0)]
+    assert [describe_config(c, over_lambda) for c in over_lambda] == [
+        "sep-cmaes reg=0 red-green-red", "sep-cmaes reg=100 red-green-red", "sep-cmaes reg=10 red-green-red"]
+
+
 def test_labels_name_what_sets_a_configuration_apart():
     neat_092, neat_20 = _config(), _config(given={"genetics": "2.0"})
     es, es_sigma = _config(algo="openai-es"), _config(algo="openai-es", given={"sigma": 0.05})

@@ -13,7 +13,8 @@ import pytest
 
 from envs import ForagingConfig
 from lifelong_evo.cli import build_parser, main
-from lifelong_evo.compare import model_specific_report, select_model_specific, selection_score
+from lifelong_evo.compare import model_specific_label, model_specific_report, select_model_specific, selection_score
+from lifelong_evo.config import RunConfig
 from lifelong_evo.grid import build_grid
 from lifelong_evo.sweep import run_trial, trial_state
 
@@ -220,6 +221,25 @@ def test_model_specific_lambda_selection():
     c1 = next(row for row in rows if row["metric"] == "C_top phase 1 (green)")
     assert c1["values"] == [4.0, 6.0] and c1["reg"] == "m.s. 5 0" and c1["mean"] == 5.0
     assert next(row for row in rows if row["metric"] == "C phase 1 (green)")["values"] == [14.0, 16.0]
+
+
+def test_model_specific_lambda_of_each_importance_has_the_unregularised_run_as_candidate():
+    """The families sweep runs lambda 0 once and lambda 100 with either importance: both
+    importances choose between 100 and none, and each m.s. row is named by its importance."""
+    base = {"algo": "sep-cmaes", "schedule": "red-green-red", "population": 12}
+    runs = []
+    for seed, variant, c1, r_top in [(1, "none", 5.0, 1.0), (1, "l2", 4.0, 3.0), (1, "ewc", 2.0, 1.0),
+                                     (2, "none", 6.0, 2.0), (2, "l2", 3.0, 3.0), (2, "ewc", 7.0, 4.0)]:
+        options = {} if variant == "none" else {"importance": variant}
+        config = RunConfig(**base, seed=seed, reg=0.0 if variant == "none" else 100.0, algo_options=options)
+        written = {**config.to_dict(), "algo_options_resolved": config.algo_options_resolved()}
+        runs.append((written, _summary(c1, r_top), f"{variant}-seed{seed}"))
+    selections = select_model_specific(runs)
+    chosen = {s["config"]["algo_options_resolved"]["importance"]: [c["tag"] for c in s["choices"]] for s in selections}
+    assert chosen == {"l2": ["l2-seed1", "none-seed2"], "ewc": ["none-seed1", "ewc-seed2"]}
+    configs = [config for config, _, _ in runs]
+    assert sorted(model_specific_label(s["config"], configs) for s in selections) == [
+        "sep-cmaes reg=m.s. red-green-red importance=ewc", "sep-cmaes reg=m.s. red-green-red importance=l2"]
 
 
 def test_variants_give_values_together(tmp_path, capsys):
