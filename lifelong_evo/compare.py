@@ -18,8 +18,9 @@ regulariser's options, are one) and writes, to
 ``comparison.csv``   the same values, one line per configuration and metric (with the raw values)
 ``comparison-current[-<schedule>].png``  each configuration's current-performance curve (mean
                      over seeds, min-max band) on a shared drift schedule
-``comparison-retention[-<schedule>].png``  the same for the retention of the schedule's first
-                     task while other tasks are current: the population's and the top individual's
+``comparison-retention[-<schedule>].png``  the same for the retention of every task while another
+                     is current (red through green, green through red's return), the population's
+                     and the top individual's, one line style per task
 ``comparison-diagnostics[-<schedule>].png``  the same for each diagnostic the optimisers log
                      (``Optimizer.diagnostics``: the distance to the regulariser's reference and
                      its spread; NEAT's fraction of disabled connections), one panel each
@@ -40,6 +41,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import itertools
 import json
 import math
 import re
@@ -380,17 +382,51 @@ def _overlay(ax, groups: list[list[Run]], configs: list[dict[str, Any]], series)
         found = series(group)
         if found is not None:
             generations, values = found
-            label = f"{describe_config(group[0].config, configs)} (n={len(group)})"
-            band(ax, generations, values, CONFIG_COLORS[k % len(CONFIG_COLORS)], "-", label,
+            band(ax, generations, values, CONFIG_COLORS[k % len(CONFIG_COLORS)], "-", _legend(group, configs),
                  marker="o" if len(generations) < 40 else None)
             drawn = True
+    _finish(ax, groups)
+    return drawn
+
+
+RETENTION_STYLES = ("-", "--", ":", "-.")
+"""Line style of each task's retention, in the schedule's order of first appearance."""
+
+
+def _overlay_retention(ax, groups: list[list[Run]], configs: list[dict[str, Any]], level: str) -> bool:
+    """Each configuration's retention of every task while another is current (``level``: pop or
+    top), one colour per configuration and one line style per task, so a red -> green -> red
+    schedule shows red kept through green and green kept through red's return; False if none."""
+    tasks = list(dict.fromkeys(groups[0][0].tasks))
+    drawn = False
+    for k, group in enumerate(groups):
+        found = retention_by_task(group, level)
+        label = _legend(group, configs)
+        for task, style in zip(tasks, itertools.cycle(RETENTION_STYLES)):
+            if task in found:
+                generations, values = found[task]
+                band(ax, generations, values, CONFIG_COLORS[k % len(CONFIG_COLORS)], style, label,
+                     marker="o" if len(generations) < 40 else None)
+                label, drawn = None, True
+    if drawn:
+        for task, style in zip(tasks, itertools.cycle(RETENTION_STYLES)):
+            ax.plot([], [], color="0.3", linestyle=style, label=f"retention of {task}")
+    _finish(ax, groups)
+    return drawn
+
+
+def _legend(group: list[Run], configs: list[dict[str, Any]]) -> str:
+    return f"{describe_config(group[0].config, configs)} (n={len(group)})"
+
+
+def _finish(ax, groups: list[list[Run]]) -> None:
     draw_drifts(ax, groups[0][0])
     shade_phases(ax, groups[0][0])
     ax.set_xlabel("generation")
     ax.margins(y=0.08)
     ax.grid(alpha=0.25)
-    ax.legend(fontsize=8, loc="best")
-    return drawn
+    # beside the axes: with a few configurations overlaid, any place inside hides some curve
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
 
 
 def _column(name: str):
@@ -426,29 +462,28 @@ def overlay_figures(paths, out: Path) -> list[Path]:
     for index, groups in enumerate(by_schedule.values()):
         schedule = str(groups[0][0].config.get("schedule", ""))
         suffix = "" if len(by_schedule) == 1 else f"-{index}-" + re.sub(r"[^A-Za-z0-9]+", "-", schedule).strip("-")
-        fig, ax = plt.subplots(figsize=(10, 5), constrained_layout=True)
+        fig, ax = plt.subplots(figsize=(13, 5), constrained_layout=True)
         _overlay(ax, groups, configs, _column("best"))
         ax.set_title(f"Current performance C (best of the population on the current task), schedule {schedule}\n"
                      "mean over seeds, band: min-max; coloured strip: the current task", fontsize=10)
         ax.set_ylabel("fitness (reward per episode)")
         written.append(save(fig, out / f"comparison-current{suffix}.png"))
-        first = groups[0][0].tasks[0] if groups[0][0].tasks else None
-        fig, axes = plt.subplots(2, 1, figsize=(10, 7), sharex=True, constrained_layout=True)
-        drawn = [_overlay(ax, groups, configs, lambda group, level=level: retention_by_task(group, level).get(first))
-                 for ax, level in zip(axes, ("pop", "top"))]
+        fig, axes = plt.subplots(2, 1, figsize=(13, 8), sharex=True, constrained_layout=True)
+        drawn = [_overlay_retention(ax, groups, configs, level) for ax, level in zip(axes, ("pop", "top"))]
         if any(drawn):
             axes[0].set_xlabel("")
-            axes[0].set_ylabel(f"R_pop ({first})")
-            axes[1].set_ylabel(f"R_top ({first})")
-            axes[0].set_title(f"Retention of the first task, {first}, while other tasks are current "
-                              f"(population: best; top individual), schedule {schedule}\n"
-                              "mean over seeds, band: min-max; coloured strip: the current task", fontsize=10)
+            axes[0].set_ylabel("R_pop")
+            axes[1].set_ylabel("R_top")
+            axes[0].set_title(f"Retention of each earlier task while another is current (population: best; "
+                              f"top individual), schedule {schedule}\n"
+                              "mean over seeds, band: min-max; line style: the task; coloured strip: the current task",
+                              fontsize=10)
             written.append(save(fig, out / f"comparison-retention{suffix}.png"))
         else:
             plt.close(fig)
         names = _diagnostics(groups)
         if names:
-            fig, axes = plt.subplots(len(names), 1, figsize=(10, 3.2 * len(names)), sharex=True,
+            fig, axes = plt.subplots(len(names), 1, figsize=(13, 3.2 * len(names)), sharex=True,
                                      constrained_layout=True, squeeze=False)
             for ax, name in zip(axes[:, 0], names):
                 _overlay(ax, groups, configs, _column(name))

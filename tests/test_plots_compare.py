@@ -173,6 +173,31 @@ def test_compare_groups_configurations_and_matches_hand_computation(sweep, tmp_p
     assert (es_only / "comparison-diagnostics.png").read_bytes().startswith(PNG)  # the ES log their distance too
 
 
+def test_the_retention_figure_draws_every_task_kept_while_another_is_current(sweep, tmp_path, monkeypatch):
+    """Red through green (solid) and green through red's return (dashed): the seeds' mean of
+    metrics.csv's retention columns, for the population and the top individual."""
+    from lifelong_evo import compare
+    from lifelong_evo.rundir import read_metrics
+
+    figures = {}
+    monkeypatch.setattr(compare, "save", lambda fig, path: figures.setdefault(path.name, fig) and path)
+    compare.overlay_figures([sweep / "neat"], tmp_path)
+    metrics = [read_metrics(p / "metrics.csv") for p in sorted((sweep / "neat").iterdir())]
+    for ax, level in zip(figures["comparison-retention.png"].axes, ("pop", "top")):
+        (labelled,) = [line for line in ax.get_lines() if "(n=2)" in line.get_label()]
+        drawn = {line.get_linestyle(): line for line in ax.get_lines() if line.get_color() == labelled.get_color()}
+        for task, style, phase in (("red", "-", 1), ("green", "--", 2)):
+            rows = [[r for r in seed if int(r["task_index"]) == phase and r[f"retention_{level}_{task}"]]
+                    for seed in metrics]
+            expected = np.mean([[float(r[f"retention_{level}_{task}"]) for r in seed] for seed in rows], axis=0)
+            line = drawn[style]
+            x, y = np.asarray(line.get_xdata(), float), np.asarray(line.get_ydata(), float)
+            shown = ~np.isnan(y)
+            assert list(x[shown]) == [int(r["generation"]) for r in rows[0]]
+            np.testing.assert_allclose(y[shown], expected)
+        assert {t.get_text() for t in ax.get_legend().get_texts()} >= {"retention of red", "retention of green"}
+
+
 def test_the_papers_table_has_a_line_per_configuration(sweep):
     """One line per configuration in the paper's shape, each cell the estimate of its metric
     over the seeds: red learnt, green learnt by the top individual, red's retention and
