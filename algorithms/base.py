@@ -86,9 +86,19 @@ class Optimizer(ABC):
     """The options the constructor takes as keyword arguments (none by default)."""
 
     @classmethod
-    def check_population(cls, population_size: int) -> None:
-        """Raise ValueError unless this optimiser can evolve ``population_size`` controllers
-        (checked with the options, before anything is built; any size >= 1 by default)."""
+    def check_population(cls, population_size: int, options: OptimizerOptions) -> None:
+        """Raise ValueError, saying the smallest size it can evolve, unless this optimiser can
+        evolve ``population_size`` controllers with ``options`` (checked before anything is
+        built; any size >= 1 by default)."""
+
+    @classmethod
+    def memory_needs(cls, population_size: int, obs_dim: int, options: OptimizerOptions) -> tuple[int, int]:
+        """Bytes this optimiser holds at its peak for ``population_size`` controllers with
+        ``obs_dim`` inputs (its state, its samples, its temporaries), and bytes its policy adds per
+        (environment, agent) row while it runs: an upper estimate, measured on the built-in
+        optimisers, for the check that a run fits in memory (``lifelong_evo.memory``). The default
+        guesses an MLP of about 1000 parameters and 64 hidden units."""
+        return 16 * population_size * 1000, 16 * 64
 
     centre_index: int | None = None
     """Index of the search distribution's centre among the controllers (ES), else ``None``."""

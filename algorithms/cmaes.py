@@ -18,6 +18,7 @@ import torch
 from evotorch.algorithms import CMAES as _EvoCMAES
 
 from .es import ESOptimizer, ESOptions
+from .mlp import layer_sizes_for, n_parameters
 
 
 class _AskTellCMAES(_EvoCMAES):
@@ -64,6 +65,16 @@ class CMAES(ESOptimizer):
         """Initial step size."""
         learning_rate: float = 1.0
         """c_m, the learning rate of the mean (1: the standard CMA-ES)."""
+
+    @classmethod
+    def memory_needs(cls, population_size: int, obs_dim: int, options: ESOptions) -> tuple[int, int]:
+        state, per_row = super().memory_needs(population_size, obs_dim, options)
+        if cls.separable:
+            return state, per_row
+        # the covariance matrix, its eigendecomposition and the update's d x d terms: about 10
+        # float32 copies, measured
+        d = n_parameters(layer_sizes_for(obs_dim, options.hidden))
+        return state + 40 * d * d, per_row
 
     def _make_searcher(self, centre_init):
         return _AskTellCMAES(self.problem, stdev_init=self.sigma_init, popsize=self.n_samples,

@@ -22,7 +22,7 @@ import math
 import numbers
 import warnings
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import torch
@@ -70,13 +70,14 @@ class TellProblem(Problem):
 @dataclass(frozen=True)
 class ESOptions(OptimizerOptions):
     """The options of every evolution strategy; each algorithm redeclares ``sigma`` and
-    ``learning_rate`` with its own default and meaning."""
+    ``learning_rate`` with its own default and meaning (and these bounds: ``metadata``, see
+    ``lifelong_evo.options``)."""
 
-    hidden: tuple[int, ...] = (16,)
+    hidden: tuple[int, ...] = field(default=(16,), metadata={"min": 1, "max": 4096, "max_items": 16})
     """Hidden layer sizes of the MLP controller, e.g. [32,16] ([]: none, a linear controller)."""
-    sigma: float = 0.1
+    sigma: float = field(default=0.1, metadata={"above": 0, "max": 1000})
     """Initial standard deviation of the search distribution."""
-    learning_rate: float = 1.0
+    learning_rate: float = field(default=1.0, metadata={"above": 0, "max": 1000})
     """Learning rate of the search distribution's centre."""
     reference: Reference = "centre"
     """The regulariser's reference, taken at each task end: the centre, or the task's best controller."""
@@ -116,11 +117,18 @@ class ESOptimizer(Optimizer):
     """Mirrored sampling needs an even number of samples."""
 
     @classmethod
-    def check_population(cls, population_size: int) -> None:
+    def check_population(cls, population_size: int, options: ESOptions | None = None) -> None:
         if population_size < 2:
             raise ValueError(f"{cls.name} needs at least 2 samples per generation, got {population_size}")
         if cls.even_population and population_size % 2:
             raise ValueError(f"{cls.name} samples mirrored pairs: the population must be even, got {population_size}")
+
+    @classmethod
+    def memory_needs(cls, population_size: int, obs_dim: int, options: ESOptions) -> tuple[int, int]:
+        # measured (docs/usage.md, Memory): about 4 float32 copies of the samples (EvoTorch's, the
+        # asked population, the gradient's), and a few of each hidden activation
+        d = n_parameters(layer_sizes_for(obs_dim, options.hidden))
+        return 16 * (population_size + 1) * d, 16 * (sum(options.hidden) + 3)
 
     def __init__(self, *, obs_dim: int, population_size: int = 300, seed: int,
                  reg: float = 0.0, device: str | torch.device = "cpu", **options):
@@ -128,7 +136,7 @@ class ESOptimizer(Optimizer):
         self.layer_sizes = layer_sizes_for(obs_dim, self.options.hidden)
         self.n_parameters = n_parameters(self.layer_sizes)
         self.n_samples = int(population_size)
-        self.check_population(self.n_samples)
+        self.check_population(self.n_samples, self.options)
         self.sigma_init = float(self.options.sigma)
         self.learning_rate = float(self.options.learning_rate)
         self.device = torch.device(device)

@@ -94,6 +94,21 @@ def neat_config_path() -> str:
     return str(resources.files("algorithms").joinpath("neat_config.ini"))
 
 
+def minimum_population(genetics: str = DEFAULT_GENETICS) -> int:
+    """The smallest population NEAT evolves at the size asked, with the paper's configuration
+    (``neat_config.ini``): each species keeps its ``elitism`` best genomes, so 0.92's genetics
+    grows a smaller population to that many; 2.0's gives every species at least
+    max(``elitism``, ``min_species_size``) genomes and stops with an error ("Configuration
+    conflict") where two species do not fit."""
+    parser = configparser.ConfigParser()
+    with open(neat_config_path()) as f:
+        parser.read_file(f)
+    elitism = parser.getint("DefaultReproduction", "elitism")
+    if check_genetics(genetics) == "0.92":
+        return elitism
+    return 2 * max(elitism, parser.getint("DefaultReproduction", "min_species_size"))
+
+
 class Reproduction(neat.DefaultReproduction):
     """neat-python 2.0.0's ``DefaultReproduction`` with one bug fixed: ``_adjust_spawn_exact``,
     when the species' spawn counts add up to more than the population, takes one genome off each

@@ -30,7 +30,7 @@ import numbers
 import random
 import warnings
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import neat
@@ -48,6 +48,7 @@ from .neat_network import (
     build_neat_config,
     compile_genomes,
     genome_layers,
+    minimum_population,
 )
 
 STATE_FORMAT = "lifelong-evo/neat/2"
@@ -67,7 +68,7 @@ def _take_counter(obj, attr: str) -> int | None:
 class NeatOptions(OptimizerOptions):
     """NEAT's options (the NEAT parameters themselves are the paper's: ``neat_config.ini``)."""
 
-    references: int = 1
+    references: int = field(default=1, metadata={"min": 1, "max": 1000})
     """The regulariser's penalty is the mean genetic distance to the last this many task references."""
     unconnected_outputs: UnconnectedOutputs = "zero"
     """Nodes without enabled inputs are dead (zero: neat-python 0.92, the paper's) or bias neurons
@@ -93,9 +94,29 @@ class NeatOptimizer(Optimizer):
     diagnostics = ("distance_mean", "distance_std", "disabled_fraction")
     regularizer_options = ("references",)
 
+    @classmethod
+    def check_population(cls, population_size: int, options: NeatOptions | None = None) -> None:
+        genetics = (options or cls.Options()).genetics
+        smallest = minimum_population(genetics)
+        if population_size < smallest:
+            why = (f"room for two species of {smallest // 2} genomes" if genetics == "2.0"
+                   else f"every species keeps its {smallest} best genomes")
+            raise ValueError(f"NEAT with genetics {genetics} needs a population of at least {smallest} ({why}: "
+                             f"elitism in neat_config.ini), got {population_size}")
+
+    @classmethod
+    def memory_needs(cls, population_size: int, obs_dim: int, options: NeatOptions) -> tuple[int, int]:
+        # measured: the genomes, as neat-python's objects, about 2.5 kB a gene (a fresh genome has
+        # about 2 * obs_dim + 10 genes: half of the input-to-node connections), and speciating the
+        # first population, about 5 bytes per gene for every pair of genomes; the batched
+        # network's node values, for up to 64 node slots
+        genes = 2 * obs_dim + 10
+        return population_size * genes * 2500 + population_size ** 2 * (5 * genes + 30), 16 * 64
+
     def __init__(self, *, obs_dim: int, population_size: int, seed: int,
                  reg: float = 0.0, device: str | torch.device = "cpu", **options):
         self.options = self.Options(**options)
+        self.check_population(int(population_size), self.options)
         if not (math.isfinite(reg) and reg >= 0):
             raise ValueError(f"reg (lambda) must be a finite number >= 0, got {reg}")
         self.obs_dim = int(obs_dim)

@@ -191,16 +191,16 @@ class Regularizer:
         self._sens_count = 0
 
     def state_dict(self) -> dict[str, Any]:
-        return {"reg": self.reg, "reference_mode": self.reference_mode,
+        return {"reference_mode": self.reference_mode,
                 "importance_mode": self.importance_mode, "reference": self.reference,
                 "importance": self.importance, "tasks_ended": self.tasks_ended,
                 "best_params": self.best_params, "best_fitness": self.best_fitness,
                 "sensitivity": self._sens.clone(), "sensitivity_count": self._sens_count}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        if "lam" in state:  # a checkpoint written before lambda was called reg everywhere
-            state = {**state, "reg": state["lam"]}
-        for key in ("reg", "reference_mode", "importance_mode"):
+        # lambda is the run's setting, not state: a run may start from the first task of one with
+        # another lambda (the reference and the importance do not depend on it)
+        for key in ("reference_mode", "importance_mode"):
             if state[key] != getattr(self, key):
                 raise ValueError(f"checkpoint has regulariser {key}={state[key]!r}, "
                                  f"this optimiser {getattr(self, key)!r}")

@@ -5,7 +5,7 @@ Defaults are the paper's (docs/environment.md). Lengths are in robot diameters.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 
 COLOR_IDS: dict[str, int] = {
     "red": 3, "blue": 4, "green": 5, "yellow": 6, "purple": 7, "white": 8, "cyan": 9, "black": 10,
@@ -77,35 +77,39 @@ def task_by_name(name: str) -> Task:
 
 @dataclass(frozen=True)
 class ForagingConfig:
-    """Static options of the foraging arena (the paper's defaults)."""
+    """Static options of the foraging arena (the paper's defaults).
 
-    size: float = 20.0
+    A field's ``metadata`` declares the values the command line accepts (``min``, ``max``,
+    ``above``: see ``lifelong_evo.options``): every one the arena can run, with room to spare
+    beyond the paper's, none that would overflow its integer keys or ask for absurd memory."""
+
+    size: float = field(default=20.0, metadata={"min": 8, "max": 1000})
     """Side of the square arena."""
-    n_agents: int = 5
+    n_agents: int = field(default=5, metadata={"min": 1, "max": 1000})
     """Robots in the swarm; all run the same controller."""
-    n_boxes: int = 20
+    n_boxes: int = field(default=20, metadata={"min": 1, "max": 10_000})
     """Boxes in the arena."""
-    n_neighbors: int = 3
+    n_neighbors: int = field(default=3, metadata={"min": 1, "max": 100})
     """Nearest sensed entities in each observation."""
-    sensor_range: float = 4.0
+    sensor_range: float = field(default=4.0, metadata={"above": 0, "max": 1000})
     """Sensing radius (walls strictly inside, boxes and agents inclusive)."""
-    max_wheel_velocity: float = 2.0
+    max_wheel_velocity: float = field(default=2.0, metadata={"above": 0, "max": 1000})
     """Wheel speed limit, units per second."""
-    sensitivity: float = 0.5
+    sensitivity: float = field(default=0.5, metadata={"above": 0, "max": 0.5})
     """Pick-up radius (strict), in (0, 0.5]."""
-    time_step: float = 0.1
+    time_step: float = field(default=0.1, metadata={"above": 0, "max": 10})
     """Seconds per step."""
-    duration: int = 500
+    duration: int = field(default=500, metadata={"min": 1, "max": 100_000})
     """Steps per episode."""
-    max_retrieves: int = 20
+    max_retrieves: int = field(default=20, metadata={"min": 1, "max": 1_000_000})
     """Correct retrievals that end an episode early."""
-    rate_target: float = 0.5
+    rate_target: float = field(default=0.5, metadata={"min": 0, "max": 1})
     """Fraction of boxes with the target colour at reset."""
     repositioning: bool = True
     """Dropped boxes respawn in the arena (else they are gone)."""
     see_other_agents: bool = False
     """Agents sense each other (the paper's table: off; the original driver: on)."""
-    colors: tuple[int, ...] = (3, 4, 5, 6)
+    colors: tuple[int, ...] = field(default=(3, 4, 5, 6), metadata={"min": 3, "max": 10, "max_items": 8})
     """Colour ids the arena knows: contiguous from 3. Fixes the observation size."""
 
     def __post_init__(self):

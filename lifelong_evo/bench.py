@@ -8,25 +8,36 @@ with ``--compile`` as well, first eagerly, then compiled. ``--cuda-graphs`` (wit
 replays the environment's step as a CUDA graph (``ForagingEnv.graph_step``); ``--runs N`` times N
 runs at once, evaluated in one batch (``sweep --together``), the figures being for all N.
 The last line is always ``s_per_generation=<seconds>`` for the chosen workload.
+The flags are typed and bounded as a run's (``BenchSettings``, ``lifelong_evo.flags.add_flags``)
+and checked as a run's (the algorithm, its population, the device, a C++ compiler, the memory
+the workload needs: ``lifelong_evo.memory``): a bad one is one line, ``error: ...``, exit status 2.
 ``benchmarks/reference_step.py`` (a script outside the package) runs the environment part on
 another step: ``main(env_class=...)``.
 """
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field, replace
 
 import torch
 
-from algorithms import make_optimizer
+from algorithms import UnknownAlgorithmError, make_optimizer
 from algorithms.base import BatchedPolicy
 from algorithms.mlp import MLPPolicy, layer_sizes_for, n_parameters
-from envs import TASKS, ForagingConfig, ForagingEnv
+from envs import TASKS, ConfigError, ForagingConfig, ForagingEnv
+from lifelong_evo import memory
+from lifelong_evo.config import RunConfig
+from lifelong_evo.errors import Parser, UserError
 from lifelong_evo.evaluate import Evaluation, evaluate_together, rollout, shard_bounds, update_threads
+from lifelong_evo.flags import add_flags, typed
 
 WARM_UP_STEPS = 3
 """Untimed steps before the timed ones (they compile the step under --compile)."""
+ENV_ROWS = 10
+"""Environments each random controller drives in the environment benchmark."""
 
 
 def _timed(fn):
@@ -75,12 +86,12 @@ def bench_env(n_envs: int, steps: int, config: ForagingConfig, device: str, comp
     ``step``, ``observe`` and ``compile``; ``cuda_graphs``: its step replayed as a CUDA graph
     (captured during the untimed warm-up)."""
     generator = torch.Generator().manual_seed(0)
-    population = max(1, n_envs // 10)
+    population = max(1, n_envs // ENV_ROWS)
     sizes = layer_sizes_for(config.obs_dim)
     policy = MLPPolicy(torch.randn(population, n_parameters(sizes), generator=generator).to(device), sizes)
     shards = []
     for start, stop in shard_bounds(population, eval_threads):
-        env = env_class(config, batch_size=(stop - start) * 10, device=device)
+        env = env_class(config, batch_size=(stop - start) * ENV_ROWS, device=device)
         if compile_env:
             env.compile()
         if cuda_graphs:
@@ -93,8 +104,8 @@ def bench_env(n_envs: int, steps: int, config: ForagingConfig, device: str, comp
     controller = sum(shard_policy.seconds for shard_policy, _, _ in timed)
     dynamics = sum(env.seconds for _, env, _ in timed)
     busy = controller + dynamics  # summed over the threads
-    result = {"envs": population * 10, "s_per_generation": total * config.duration / steps,
-              "agent_steps_per_s": population * 10 * config.n_agents * steps / total,
+    result = {"envs": population * ENV_ROWS, "s_per_generation": total * config.duration / steps,
+              "agent_steps_per_s": population * ENV_ROWS * config.n_agents * steps / total,
               "controller": controller / busy, "step": dynamics / busy}
     if not compile_env:  # compiled, the sensing is fused with the drops into one graph
         sensing = sum(min(_timed(env.observe)[1] for _ in range(5)) for _, env, _ in shards) * steps
@@ -142,38 +153,84 @@ def bench_algo(algo: str, population: int, n_envs: int, generations: int, device
     return per
 
 
+def _run_bounds(name: str) -> dict:
+    """The bounds RunConfig declares for its field ``name``: the benchmark's flag of the same name takes what a run takes."""
+    return dict(RunConfig.__dataclass_fields__[name].metadata)
+
+
+@dataclass(frozen=True)
+class BenchSettings:
+    """The benchmark's flags (``--algo`` aside): each field's type and bounds parse its value, as a
+    run's flags are parsed (``lifelong_evo.flags.add_flags``), and its docstring is its help."""
+
+    envs: int = field(default=3000, metadata={"min": ENV_ROWS, "max": 10_000_000})
+    """Environments of the reported workload, a multiple of 10: one random controller drives 10 (env only)."""
+    also: tuple[int, ...] = field(default=(300, 12000), metadata={"min": ENV_ROWS, "max": 10_000_000, "max_items": 16})
+    """Other batch sizes to print first, multiples of 10 (env only; [] for none)."""
+    steps: int = field(default=100, metadata={"min": 1, "max": ForagingConfig().duration - WARM_UP_STEPS})
+    """Steps timed per batch size, scaled to the 500 of an episode; they follow the warm-up within one episode (env only)."""
+    population: int = field(default=300, metadata=_run_bounds("population"))
+    """Population size (--algo)."""
+    evals: int = field(default=10, metadata=_run_bounds("evals"))
+    """Environments per controller (--algo)."""
+    generations: int = field(default=2, metadata={"min": 1, "max": 1000})
+    """Generations timed after a warm-up (--algo)."""
+    runs: int = field(default=1, metadata={"min": 1, "max": 1000})
+    """Time this many runs at once, evaluated in one batch as sweep --together does (--algo, with --eval-threads 1; the figures are for all of them)."""
+    threads: int = field(default=1, metadata=_run_bounds("threads"))
+    """Torch threads."""
+    eval_threads: int = field(default=1, metadata=_run_bounds("eval_threads"))
+    """Threads that each play a slice of the controllers (use with --compile --threads 1)."""
+    device: str = "cpu"
+    """Torch device: cpu, cuda or cuda:N."""
+    compile: bool = False
+    """torch.compile the environment's step (compiled during the untimed warm-up)."""
+    cuda_graphs: bool = False
+    """Replay the environment's step as a CUDA graph (captured during the warm-up; --device cuda)."""
+
+
+def _parse_args(argv, env_class: type) -> argparse.Namespace:
+    """The flags, parsed and checked as a run's are: one line, ``error: ...``, exit status 2 otherwise."""
+    parser = Parser(prog="python -m lifelong_evo.bench", description=__doc__,
+                    formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--algo", default=None, type=typed(str),
+                        help="time a full generation of this optimiser (default: the environment alone)")
+    add_flags(parser, BenchSettings)
+    parser.add_argument("--no-memory-check", dest="memory_check", action="store_false",
+                        help="time a workload that the memory check estimates this machine cannot hold")
+    args = parser.parse_args(argv)
+    if env_class is not ForagingEnv and args.algo:
+        raise UserError(f"{env_class.__name__} is timed as the environment step alone: drop --algo")
+    if args.runs > 1 and (not args.algo or args.eval_threads != 1):
+        raise UserError("--runs N times N runs of an --algo in one batch: give --algo, N >= 1 and --eval-threads 1")
+    if args.cuda_graphs and env_class is not ForagingEnv:
+        raise UserError(f"--cuda-graphs replays ForagingEnv's step, not {env_class.__name__}'s: drop --cuda-graphs")
+    for flag, sizes in (("--envs", [args.envs]), ("--also", args.also)):
+        if any(n % ENV_ROWS for n in sizes):
+            raise UserError(f"{flag} {','.join(map(str, sizes))}: one random controller drives {ENV_ROWS} "
+                            f"environments, so give multiples of {ENV_ROWS}")
+    # the run's own checks: the algorithm and its population, the device, a compiler, CUDA graphs on CUDA
+    workload = replace(RunConfig(), schedule="red", record=False, threads=args.threads, eval_threads=args.eval_threads,
+                       device=args.device, compile=args.compile, cuda_graphs=args.cuda_graphs,
+                       **({"algo": args.algo, "population": args.population, "evals": args.evals} if args.algo
+                          else {})).validate()
+    if args.memory_check:
+        if not args.algo:  # the environment alone: random 41-16-3 MLPs, whose needs an ES's estimate covers
+            workload = replace(workload, algo="snes", population=max([args.envs, *args.also]) // ENV_ROWS,
+                               evals=ENV_ROWS)
+        fix = "lower --population or --evals" if args.algo else "lower --envs or --also"
+        memory.check([workload] * args.runs, together=True, what="this benchmark",
+                     fix=f"{fix}, or pass --no-memory-check to time it anyway")
+    return args
+
+
 def main(argv=None, env_class: type = ForagingEnv) -> None:
     """The benchmark's command line; ``env_class``: the step the environment benchmark times."""
-    parser = argparse.ArgumentParser(prog="python -m lifelong_evo.bench", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--algo", default=None, help="time a full generation of this optimiser (default: env only)")
-    parser.add_argument("--envs", type=int, default=3000, help="environments of the reported workload (env only)")
-    parser.add_argument("--also", default="300,12000", help="other batch sizes to print (env only; '' for none)")
-    parser.add_argument("--steps", type=int, default=100, help="steps timed per batch size, scaled to 500 (env only)")
-    parser.add_argument("--population", type=int, default=300, help="population size (--algo)")
-    parser.add_argument("--evals", type=int, default=10, help="environments per controller (--algo)")
-    parser.add_argument("--generations", type=int, default=2, help="generations timed after a warm-up (--algo)")
-    parser.add_argument("--runs", type=int, default=1,
-                        help="time this many runs at once, evaluated in one batch as sweep --together does "
-                             "(--algo; the figures are for all of them)")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads")
-    parser.add_argument("--eval-threads", type=int, default=1,
-                        help="threads that each play a slice of the controllers (use with --compile --threads 1)")
-    parser.add_argument("--compile", action="store_true", help="torch.compile the environment's step (compiled during the untimed warm-up)")
-    parser.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
-    parser.add_argument("--cuda-graphs", action="store_true",
-                        help="replay the environment's step as a CUDA graph (captured during the warm-up; --device cuda)")
-    args = parser.parse_args(argv)
-    config = ForagingConfig()
-    if env_class is not ForagingEnv and args.algo:
-        parser.error(f"{env_class.__name__} is timed as the environment step alone: drop --algo")
-    if args.runs < 1 or (args.runs > 1 and (not args.algo or args.eval_threads != 1)):
-        parser.error("--runs N times N runs of an --algo in one batch: give --algo, N >= 1 and --eval-threads 1")
-    if args.cuda_graphs and (env_class is not ForagingEnv or not args.device.startswith("cuda")):
-        parser.error("--cuda-graphs replays ForagingEnv's step on a GPU: add --device cuda, or drop --cuda-graphs")
-    if not 1 <= args.steps <= config.duration - WARM_UP_STEPS:
-        parser.error(f"--steps must be from 1 to {config.duration - WARM_UP_STEPS}: the timed steps follow the "
-                     f"warm-up within one {config.duration}-step episode")
+    try:
+        args = _parse_args(argv, env_class)
+    except (UserError, ConfigError, UnknownAlgorithmError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
     torch.set_num_threads(args.threads)
     print(f"threads={torch.get_num_threads()} eval_threads={args.eval_threads} device={args.device} "
           f"compile={'on' if args.compile else 'off'} cuda_graphs={'on' if args.cuda_graphs else 'off'}"
@@ -189,10 +246,10 @@ def main(argv=None, env_class: type = ForagingEnv) -> None:
                   f"regularise+tell {result['tell']:.3f} s; {result['s_per_generation']:.3f} s/generation")
         print(f"s_per_generation={result['s_per_generation']:.3f}")
         return
-    sizes = [int(s) for s in args.also.split(",") if s] + [args.envs]
+    sizes = [*args.also, args.envs]
     result = {}
     for n_envs in sizes:
-        result = bench_env(n_envs, args.steps, config, args.device, args.compile, args.eval_threads, env_class,
+        result = bench_env(n_envs, args.steps, ForagingConfig(), args.device, args.compile, args.eval_threads, env_class,
                            args.cuda_graphs)
         print(f"envs={result['envs']:>6} x 500 steps: {result['s_per_generation']:.3f} s/generation, "
               f"{result['agent_steps_per_s'] / 1e6:.2f} M agent-steps/s; split: {_split(result)}")

@@ -17,9 +17,9 @@ from pathlib import Path
 from algorithms import REGISTRY, UnknownAlgorithmError
 from envs import ConfigError
 
-from . import compare, loop, options, plots, replay, sweep, view
+from . import compare, loop, memory, options, plots, replay, score, sweep, view
 from .config import RunConfig, merge_layers
-from .errors import UserError
+from .errors import Parser, UserError, interrupted_status, terminating_as_interrupt
 from .flags import add_run_options, resolve_run_config, run_layers
 from .options import listing, plain
 from .progress import MODES
@@ -31,7 +31,8 @@ VERBS = {
     "replay": (replay, "Run a stored controller on fresh episodes and record them."),
     "view": (view, "Open a run's recording in the Rerun viewer."),
     "plot": (plots, "Write the paper's figures for runs as PNG."),
-    "compare": (compare, "Summary table of configurations over seeds, and an overlay figure."),
+    "compare": (compare, "Tables of configurations over seeds, each against its baseline, and overlay figures."),
+    "score": (score, "Score runs' exported controllers on the held-out episodes (summary.json's held_out block)."),
     "sweep": (sweep, "Grid of runs (algorithms x lambda x seeds x ...) on Ray."),
     "options": (options, "List the environment's and each optimiser's options, with defaults."),
 }
@@ -39,21 +40,20 @@ VERBS = {
 RUN_HELP = "Run the lifelong experiment (the default verb)."
 
 
-class Parser(argparse.ArgumentParser):
-    """argparse with the command line's error contract: one line and exit status 2."""
-
-    def error(self, message: str):
-        self.exit(2, f"error: {message} (see {self.prog} --help)\n")
-
-
 def _run_parser(parser: argparse.ArgumentParser) -> None:
     add_run_options(parser)
     parser.add_argument("--out", default="runs", help="parent folder of run directories (default: runs)")
-    parser.add_argument("--name", default=None, help="run directory name (default: from algo, schedule, reg, seed)")
+    parser.add_argument("--name", default=None,
+                        help="run directory name, one folder name inside --out "
+                             "(default: from algo, schedule, reg, seed)")
     parser.add_argument("--resume", action="store_true",
                         help="continue the run from its last checkpoint: give its --name, or the flags of "
                              "the command that started it (flags that differ from its stored settings are refused)")
-    parser.add_argument("--overwrite", action="store_true", help="delete an existing run directory first")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="delete an existing run directory first (only one that lifelong-evo wrote)")
+    parser.add_argument("--start-from", default=None, metavar="RUN_DIR",
+                        help="take over the first task of this run, which differs from this one only in --reg "
+                             "(the same numbers, a third of a run's time saved on the paper's schedule), and go on")
     parser.add_argument("--progress", choices=MODES, default=None,
                         help="bar (the default on a terminal), lines (a line at every task end and at least "
                              "every 30 s: the default where stderr is a file) or off")
@@ -102,26 +102,41 @@ def resume_command(args: argparse.Namespace, name: str) -> str:
     return shlex.join(words)
 
 
+def _run_dir(args: argparse.Namespace, config: RunConfig | None = None) -> RunDir:
+    """``<--out>/<--name>``, the name by default from the settings (``config``, else the flags)."""
+    if args.name is not None:
+        return RunDir.inside(args.out, args.name)
+    name = (config or resolve_run_config(args)).default_name()
+    return RunDir.inside(args.out, name, "the run name from --algo, --schedule, --reg and --seed", fix="give --name")
+
+
 def _run(args: argparse.Namespace) -> int:
+    if args.resume and args.overwrite:
+        raise UserError("--resume continues a run directory and --overwrite deletes it: give one of them")
+    if args.resume and args.start_from:
+        raise UserError("--resume continues a run from its own checkpoint: drop --start-from")
     if args.resume:
         # the command that started the run, plus --resume, names the same directory
-        run_dir = RunDir(Path(args.out) / (args.name or resolve_run_config(args).default_name()))
+        run_dir = _run_dir(args)
         config = resumed_config(args, run_dir.read_config(), run_dir.path)
     else:
         config = resolve_run_config(args)
-        run_dir = RunDir(Path(args.out) / (args.name or config.default_name()))
+        run_dir = _run_dir(args, config)
+        run_dir.check_create(args.overwrite)  # the loop checks again, locked
+    if args.memory_check:
+        memory.check([config])
     print(f"run directory: {run_dir.path}", flush=True)
     recorder = RerunRecorder.for_run(run_dir, config, resume=args.resume) if config.record else None
     try:
         summary = loop.run(config, run_dir, resume=args.resume, overwrite=args.overwrite, recorder=recorder,
-                           progress=args.progress)
-    except KeyboardInterrupt:
+                           progress=args.progress, start_from=RunDir(args.start_from) if args.start_from else None)
+    except KeyboardInterrupt as interruption:  # Ctrl-C, or SIGTERM (errors.Terminated)
         if not run_dir.config.exists():
             print(f"\ninterrupted before {run_dir.path} was written: nothing to resume", file=sys.stderr)
         else:
             print(f"\ninterrupted: {run_dir.path} keeps everything up to its last checkpoint; continue with\n"
                   f"  {resume_command(args, run_dir.path.name)}", file=sys.stderr)
-        return 130
+        return interrupted_status(interruption)
     print(summary_table(summary))
     return 0
 
@@ -152,13 +167,14 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exit_:  # --help, or argparse's one-line error: main returns the status either way
         return exit_.code
     try:
-        return args.handler(args) or 0
+        with terminating_as_interrupt():
+            return args.handler(args) or 0
     except (UserError, ConfigError, UnknownAlgorithmError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as interruption:
         print("\ninterrupted", file=sys.stderr)
-        return 130
+        return interrupted_status(interruption)
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ from typing import Any, ClassVar
 from envs import ConfigError, ForagingConfig
 
 from .options import flag, parse_table, parse_value, schema
-from .schedule import ScheduleError, arena_colors, parse_schedule
+from .schedule import MAX_GENERATIONS, ScheduleError, arena_colors, parse_schedule
 
 
 @dataclass(frozen=True)
@@ -21,27 +21,29 @@ class RunConfig:
 
     algo: str = "neat"
     """Optimiser: a name in algorithms.REGISTRY, yours included (python -m lifelong_evo options lists them)."""
-    reg: float = 0.0
+    reg: float = field(default=0.0, metadata={"min": 0, "max": 1e9})
     """Regularisation strength lambda (0 = off): genetic distance for NEAT, L2/EWC for the ES."""
     schedule: str = "red-green-red"
     """red-green-red, four-tasks, or a list like red:200,green:100,red:50."""
-    generations: int = 200
+    generations: int = field(default=200, metadata={"min": 1, "max": MAX_GENERATIONS})
     """Generations per task where the schedule gives no count."""
-    population: int = 300
-    """Population size (for an ES: sampled solutions; the centre is scored too)."""
-    evals: int = 10
+    population: int = field(default=300, metadata={"min": 1, "max": 1_000_000})
+    """Population size (for an ES: sampled solutions; the centre is scored too); each optimiser may
+    need more (NEAT: 5, 10 with genetics 2.0; an ES: 2)."""
+    evals: int = field(default=10, metadata={"min": 1, "max": 100_000})
     """Environments per controller and task each generation (N)."""
-    seed: int = 42
-    """Seed of everything: environments, the optimiser, respawns."""
-    retention_every: int = 10
+    seed: int = field(default=42, metadata={"min": 0, "max": 2**32 - 1})
+    """Seed of everything: environments, the optimiser, respawns (below 2**32: held-out episodes and
+    recorded ones draw from seeds that no run's seed reaches)."""
+    retention_every: int = field(default=10, metadata={"min": 1, "max": MAX_GENERATIONS})
     """Score every controller on earlier tasks every this many generations (and at task ends)."""
-    checkpoint_every: int = 10
+    checkpoint_every: int = field(default=10, metadata={"min": 1, "max": MAX_GENERATIONS})
     """Write a checkpoint every this many generations (and at every task end)."""
     device: str = "cpu"
     """Torch device for environments and controllers (cpu, cuda, ...)."""
-    threads: int = 1
+    threads: int = field(default=1, metadata={"min": 1, "max": 1024})
     """Torch CPU threads per evaluation thread (one is faster for these small tensors)."""
-    eval_threads: int = 2
+    eval_threads: int = field(default=2, metadata={"min": 1, "max": 1024})
     """Evaluation threads, each playing a slice of the population with its own env; a fixed count,
     not the machine's, because the count can change the rounding of a run's numbers; 1 on a GPU,
     where threads share the one device (docs/performance.md)."""
@@ -53,8 +55,11 @@ class RunConfig:
     one launch instead of many small kernels (docs/performance.md)."""
     record: bool = True
     """Write recording.rrd (Rerun)."""
-    episodes_every: int = 0
+    episodes_every: int = field(default=0, metadata={"min": 0, "max": MAX_GENERATIONS})
     """Also record top-individual episodes every this many generations (0: only at task ends)."""
+    held_out_episodes: int = field(default=100, metadata={"min": 1, "max": 100_000})
+    """Held-out episodes per task on which every exported controller is scored at each task end
+    (a fixed test set, the same for every run: docs/metrics.md)."""
     env: dict = field(default_factory=dict)
     """Environment overrides (ForagingConfig fields); the arena colours follow the schedule."""
     algo_options: dict = field(default_factory=dict)
@@ -122,25 +127,17 @@ class RunConfig:
                          env=parse_table(ForagingConfig, self.env, "environment", "--env", listed_by),
                          algo_options=parse_table(optimizer.Options, self.algo_options, algo, "--option",
                                                   f"{listed_by} --algo {algo}"))
-        if config.reg < 0:
-            raise ConfigError(f"--reg must be >= 0, got {config.reg}")
         if config.reg and not optimizer.has_regularizer:
             raise ConfigError(f"algorithm {algo!r} has no regulariser: drop --reg")
-        for name in ("generations", "population", "evals", "retention_every", "checkpoint_every", "threads",
-                     "eval_threads"):
-            if getattr(config, name) < 1:
-                raise ConfigError(f"{flag(name)} must be >= 1, got {getattr(config, name)}")
         if config.cuda_graphs and not config.device.startswith("cuda"):
             raise ConfigError(f"--cuda-graphs needs --device cuda, not {config.device!r}: drop --cuda-graphs "
                               "or run on a GPU")
-        if config.episodes_every < 0:
-            raise ConfigError(f"--episodes-every must be >= 0, got {config.episodes_every}")
         try:
-            optimizer.Options(**config.algo_options)
+            options = optimizer.Options(**config.algo_options)
         except ValueError as error:
             raise ConfigError(f"--option {error}") from None
         try:
-            optimizer.check_population(config.population)
+            optimizer.check_population(config.population, options)
         except ValueError as error:
             raise ConfigError(f"--population: {error}") from None
         try:
@@ -171,7 +168,7 @@ class RunConfig:
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {},
     "smoke": {"generations": 5, "population": 20, "evals": 2, "retention_every": 2, "checkpoint_every": 2,
-              "compile": False, "eval_threads": 1, "env": {"duration": 200}},
+              "compile": False, "eval_threads": 1, "held_out_episodes": 10, "env": {"duration": 200}},
 }
 """``paper``: the paper's protocol. ``smoke``: a first look in seconds (eager: nothing to
 compile), with episodes long enough for the robots to reach boxes, so that every algorithm scores
@@ -223,6 +220,9 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"config file {path} does not exist") from None
     except tomllib.TOMLDecodeError as error:
         raise ConfigError(f"config file {path} is not valid TOML: {error}") from None
+    except UnicodeDecodeError as error:  # TOML is UTF-8 text
+        raise ConfigError(f"config file {path} is not UTF-8 text (byte {error.start} cannot be decoded): "
+                          "save it as UTF-8") from None
     except OSError as error:
         raise ConfigError(f"config file {path} cannot be read: {error.strerror}") from None
 

@@ -1,11 +1,14 @@
-"""The run options as command-line flags, shared by ``run`` and ``sweep``.
+"""The run options as command-line flags, shared by ``run`` and ``sweep`` (and, through
+``add_flags``, the benchmark's).
 
 Every ``RunConfig`` field is a flag (``--eval-threads``), typed and documented by the field
-itself: its type parses the value (``lifelong_evo.options``), its docstring is the help line. A
-boolean field gets ``--name`` and ``--no-name``. The nested tables are the repeatable ``--env
-KEY=VALUE`` and ``--option KEY=VALUE``; ``--preset`` and ``--config FILE`` add the layers below
-the flags (``config.resolve``). Flag defaults are None, so that a preset and a TOML file can sit
-underneath; the help shows the paper's defaults.
+itself: its type and bounds parse the value (``lifelong_evo.options``), its docstring is the help
+line. A boolean field gets ``--name`` and ``--no-name``. The nested tables are the repeatable
+``--env KEY=VALUE`` and ``--option KEY=VALUE``; ``--preset`` and ``--config FILE`` add the layers
+below the flags (``config.resolve``). ``--no-memory-check`` is no run setting: it lifts the check
+that the run fits in memory (``lifelong_evo.memory``) and never changes a run's numbers. Flag
+defaults are None, so that a preset and a TOML file can sit underneath; the help shows the
+paper's defaults.
 """
 from __future__ import annotations
 
@@ -16,14 +19,14 @@ from envs import ConfigError
 
 from .config import PRESETS, RunConfig, load_toml, resolve
 from .errors import UserError
-from .options import field_docs, flag, parse_value, plain, schema, show
+from .options import expected, field_docs, flag, parse_value, plain, schema, show, unbounded
 from .schedule import NAMED_SCHEDULES
 
 NESTED = {"env": "--env", "algo_options": "--option"}
 """The RunConfig tables set key by key, and the repeatable flag of each."""
 
 
-def _typed(kind):
+def typed(kind):
     """An argparse ``type`` parsing a flag's text as ``kind``."""
     def parse(text: str):
         try:
@@ -37,7 +40,7 @@ def _typed_list(name: str, kind):
     """An argparse ``type`` for a sweep's flag: comma-separated values, each parsed as the run's
     flag parses its one value, as a list. Schedules are separated by ``;`` (a custom schedule has
     commas of its own), named ones also by commas."""
-    parse = _typed(kind)
+    parse = typed(kind)
 
     def parse_list(text: str) -> list:
         if name == "schedule":
@@ -53,28 +56,40 @@ def _typed_list(name: str, kind):
     return parse_list
 
 
-def add_run_options(parser: argparse.ArgumentParser, axes: bool = False) -> None:
-    """One flag per RunConfig field, ``--env``, ``--option``, ``--preset`` and ``--config``.
-    ``axes``: the sweep's flags, where a value flag takes a comma-separated list (``_typed_list``)
-    and ``--preset`` defaults to the config file's."""
-    defaults = RunConfig()
-    kinds = schema(RunConfig)
-    docs = field_docs(RunConfig)
-    for f in fields(RunConfig):
-        if f.name in NESTED:
+def add_flags(parser: argparse.ArgumentParser, cls: type, skip: tuple[str, ...] = (), axes: bool = False,
+              unset: bool = False) -> None:
+    """One flag per field of dataclass ``cls`` (but ``skip``): typed by the field's type and
+    bounds, its help the field's docstring and default; a boolean field gets ``--name`` and
+    ``--no-name``. ``axes``: a value flag takes a comma-separated list (``_typed_list``).
+    ``unset``: flags default to None (so that other layers can sit underneath), else to the
+    field's default."""
+    defaults = cls()
+    kinds = schema(cls)
+    docs = field_docs(cls)
+    for f in fields(cls):
+        if f.name in skip:
             continue
         doc = plain(docs[f.name]).rstrip(".")
-        default = show(getattr(defaults, f.name))
+        default = getattr(defaults, f.name)
+        initial = None if unset else default
         if kinds[f.name] is bool:
-            parser.add_argument(flag(f.name), dest=f.name, action="store_const", const=True, default=None,
-                                help=f"{doc} (default: {default})")
+            parser.add_argument(flag(f.name), dest=f.name, action="store_const", const=True, default=initial,
+                                help=f"{doc} (default: {show(default)})")
             parser.add_argument(f"--no-{f.name.replace('_', '-')}", dest=f.name, action="store_const", const=False,
                                 help=f"the opposite of {flag(f.name)}")
         else:
-            parse = _typed_list(f.name, kinds[f.name]) if axes else _typed(kinds[f.name])
-            parser.add_argument(flag(f.name), dest=f.name, type=parse, default=None,
-                                help=f"{doc} (default: {default})" + ("; comma-separated values make an axis"
-                                                                      if axes else ""))
+            parse = _typed_list(f.name, kinds[f.name]) if axes else typed(kinds[f.name])
+            accepted = f"{expected(kinds[f.name])}; " if unbounded(kinds[f.name])[1] else ""
+            parser.add_argument(flag(f.name), dest=f.name, type=parse, default=initial,
+                                help=f"{doc} ({accepted}default: {show(default)})"
+                                     + ("; comma-separated values make an axis" if axes else ""))
+
+
+def add_run_options(parser: argparse.ArgumentParser, axes: bool = False) -> None:
+    """One flag per RunConfig field (``add_flags``), ``--env``, ``--option``, ``--preset``,
+    ``--config`` and ``--memory-check``. ``axes``: the sweep's flags, where a value flag takes a
+    comma-separated list and ``--preset`` defaults to the config file's."""
+    add_flags(parser, RunConfig, skip=tuple(NESTED), axes=axes, unset=True)
     parser.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
                         help="environment option, e.g. --env see_other_agents=true (repeatable; listed below)")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
@@ -83,6 +98,11 @@ def add_run_options(parser: argparse.ArgumentParser, axes: bool = False) -> None
                         help="paper or smoke (a run of seconds); default: "
                              + ("the config file's preset, else paper" if axes else "paper"))
     parser.add_argument("--config", default=None, metavar="FILE", help="TOML file; flags override it")
+    parser.add_argument("--memory-check", dest="memory_check", action="store_true", default=True,
+                        help="refuse, before anything is written, what would not fit in this machine's available "
+                             "memory (an upper estimate: docs/usage.md, Memory; the default)")
+    parser.add_argument("--no-memory-check", dest="memory_check", action="store_false",
+                        help="run without that check (it never changes a run's numbers)")
 
 
 def parse_assignments(items: list[str], what: str) -> dict[str, str]:

@@ -18,6 +18,7 @@ from .config import PRESETS, RunConfig, load_toml, resolve
 from .errors import UserError
 from .flags import NESTED
 from .options import flag, parse_value, schema
+from .rundir import check_run_name
 
 RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in NESTED]
 """Run options with a flag of their own."""
@@ -34,6 +35,8 @@ class Trial:
     status: str = "pending"
     error: str = ""
     wall_time_s: float | None = None
+    first_task_from: str = ""
+    """The run whose first task this trial took over (``sweep --share-first-task``), if any."""
 
 
 @dataclass
@@ -244,7 +247,11 @@ def build_grid(args: argparse.Namespace) -> Grid:
         if shared:
             raise UserError(f"{', '.join(shared)} is an axis of every trial and of [grid.{algo}] too: give it in one")
     axes = {k: axes[k] for k in sorted(axes, key=_axis_rank)}
-    grid = Grid(axes, fixed, preset, args.name or name, by_algo)
+    if args.name is not None:
+        name = check_run_name(args.name)
+    elif name is not None:
+        name = check_run_name(name, f"name in {args.config}")
+    grid = Grid(axes, fixed, preset, name, by_algo)
     for combo in itertools.product(*axes.values()):
         common = dict(zip(axes, combo))
         algo_axes, algo_fixed = by_algo.get(common.get("algo", fixed.get("algo", RunConfig().algo)), ({}, {}))
@@ -261,6 +268,8 @@ def build_grid(args: argparse.Namespace) -> Grid:
             raise UserError(f"trials {seen[trial.name].values} and {trial.values} are both named {trial.name!r}: "
                            "give the axis values distinct spellings")
         seen[trial.name] = trial
+        check_run_name(trial.name, "the trial name", fix="spell the values it is made of (axis values, --algo) "
+                                                          "differently")
     return grid
 
 

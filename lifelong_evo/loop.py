@@ -13,6 +13,8 @@ optimiser, random streams, run directory and checkpoints, and its numbers the sa
 """
 from __future__ import annotations
 
+import math
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -27,7 +29,8 @@ from .config import RunConfig, check_device
 from .episodes import play_episodes
 from .errors import UserError
 from .evaluate import Evaluation, evaluate_together, update_threads
-from .metrics import FitnessStats, GenerationRecord, Retention, retention, summarise
+from .held_out import score_controllers
+from .metrics import INITIAL, FitnessStats, GenerationRecord, Retention, controller_key, retention, summarise
 from .progress import Progress
 from .recording import Recorder
 from .rundir import GenerationLog, MetricsLayout, RunDir, read_json
@@ -48,6 +51,10 @@ class LoopState:
     """Per finished phase: its task, C and the retention on every task of the schedule."""
     initial: dict[str, dict[str, float]] = field(default_factory=dict)
     """The fresh population's scores on every task (the forward-transfer baseline)."""
+    held_out: dict[str, dict[str, float]] = field(default_factory=dict)
+    """Every exported controller's held-out score on every task (``held_out.score_controllers``)."""
+    first_task_from: str = ""
+    """The run whose first task this one took over (``start_from``), if any."""
     wall_time_s: float = 0.0
 
 
@@ -57,11 +64,13 @@ and returns the summary."""
 
 
 def run(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: bool = False,
-        recorder: Recorder | None = None, progress: str | None = None) -> dict[str, Any]:
+        recorder: Recorder | None = None, progress: str | None = None,
+        start_from: RunDir | None = None) -> dict[str, Any]:
     """Run (or continue) the lifelong experiment ``config`` into ``run_dir``; returns the summary.
-    ``progress``: a ``progress.MODES`` display on stderr, None for the stream's default."""
+    ``progress``: a ``progress.MODES`` display on stderr, None for the stream's default;
+    ``start_from``: a run whose first task this one shares (``lifelong``)."""
     return run_alone(lifelong(config, run_dir, resume=resume, overwrite=overwrite, recorder=recorder,
-                              progress=progress))
+                              progress=progress, start_from=start_from))
 
 
 def run_alone(steps: Lifelong) -> dict[str, Any]:
@@ -118,9 +127,11 @@ def _advance(steps: Lifelong, fitness: torch.Tensor | None) -> Evaluation | dict
 
 
 def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwrite: bool = False,
-             recorder: Recorder | None = None, progress: str | None = None) -> Lifelong:
+             recorder: Recorder | None = None, progress: str | None = None,
+             start_from: RunDir | None = None) -> Lifelong:
     """The lifelong loop of ``run``, as a generator that yields each generation's ``Evaluation``
-    and is sent its fitness."""
+    and is sent its fitness. ``start_from``: a new run takes over that run's first task, up to and
+    including its end (``shares_first_task``), and goes on from there."""
     check_device(config.device)  # a resumed run or a sweep's trial may land on a machine without it
     torch.set_num_threads(config.threads)
     phases = config.phases()
@@ -132,15 +143,20 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
                                **config.algo_options)
     centre = optimizer.centre_index  # ES: the search distribution's centre
     generator = torch.Generator().manual_seed(config.seed)
+    # one writer per run directory: its lock is taken before anything is written and held to the finally below
     if resume:
+        lock = run_dir.lock()
         state = _resume(config, run_dir, optimizer, generator)
     else:
         state = LoopState()
-        run_dir.create(overwrite)
+        source = _first_task_of(start_from, config) if start_from is not None else None
+        lock = run_dir.create(overwrite)
         run_dir.write_config(config)
+        if source is not None:
+            state = _take_first_task(config, run_dir, start_from, source, optimizer, generator)
     layout = MetricsLayout(tuple(t.name for t in tasks), species=config.algo == "neat", centre=centre is not None,
                            diagnostics=optimizer.diagnostics)
-    log = GenerationLog(run_dir, layout, resumed_at=state.generation if resume else None)
+    log = GenerationLog(run_dir, layout, resumed_at=state.generation if resume or start_from else None)
     recorder = recorder or Recorder()
     display = Progress(sum(p.generations for p in phases), state.generation, mode=progress)
     started = time.monotonic() - state.wall_time_s
@@ -173,10 +189,8 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
             periodic = bool(config.episodes_every) and generation % config.episodes_every == 0
             # exported before tell, which replaces the asked population that export reads from; with
             # this generation's scores, which the optimiser has not been told yet
-            exported = None
-            if last or periodic:
-                exported = {**optimizer.export(top), "generation": generation, "fitness": raw[top].item(),
-                            "selection_fitness": regularised[top].item()}
+            exports = _exports(optimizer, raw, regularised, generation) if generation == 0 or last or periodic else {}
+            exported = exports.get("top")
             with update_threads(config.threads, config.eval_threads):
                 report = optimizer.tell(raw, regularised)
 
@@ -190,12 +204,19 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
             recorder.log_generation(record)
             if generation == 0:  # scored on every task: the forward-transfer baseline
                 state.initial = {level: {name: getattr(s, level) for name, s in scores.items()} for level in ("pop", "top")}
+                initial = {controller_key(None, None, kind): controller for kind, controller in exports.items()}
+                for name, controller in initial.items():
+                    run_dir.write_controller(name, controller)
+                state.held_out.update(score_controllers(initial, env_config, tasks, config.held_out_episodes))
             if (last or periodic) and recorder.wants_episodes:
                 seen = [t for t in tasks if t.name in phase_names[:phase_index + 1]]
                 _record_episodes(config, recorder, exported, seen, generation, phase_index, phase.name, env_config)
             if last:
                 # after the task's last tell, from which the optimiser takes its regulariser's reference
-                _finish_phase(run_dir, optimizer, state, phase_index, phase.name, scores, exported)
+                _finish_phase(run_dir, optimizer, state, phase_index, phase.name, scores, exports)
+                state.held_out.update(score_controllers(
+                    {controller_key(phase_index, phase.name, kind): controller for kind, controller in exports.items()},
+                    env_config, tasks, config.held_out_episodes))
 
             state.generation = generation + 1
             state.wall_time_s = time.monotonic() - started
@@ -203,15 +224,22 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
                            {name: kept.pop for name, kept in record.retention.items()}, task_end=last)
             # after the task end: a run resumed from this checkpoint has the task's reference
             if last or state.generation % config.checkpoint_every == 0:
-                run_dir.save_checkpoint(state.generation, _checkpoint_payload(config, optimizer, generator, state))
+                payload = _checkpoint_payload(config, optimizer, generator, state)
+                run_dir.save_checkpoint(state.generation, payload)
+                if last and phase_index == 0:  # kept for runs that share this first task (start_from)
+                    run_dir.save_first_task_end(payload)
                 run_dir.write_summary(summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s,
-                                                centre is not None))
+                                                centre is not None, state.held_out, config.held_out_episodes,
+                                                state.first_task_from))
+        summary = summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s, centre is not None,
+                            state.held_out, config.held_out_episodes,
+                                                state.first_task_from)
+        run_dir.write_summary(summary)
     finally:
         log.close()
         recorder.close()
         display.close()
-    summary = summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s, centre is not None)
-    run_dir.write_summary(summary)
+        lock.release()
     return summary
 
 
@@ -225,16 +253,32 @@ def _generations(phases: list[Phase], start: int) -> Iterator[tuple[int, int, in
             generation += 1
 
 
+def _exports(optimizer, raw: torch.Tensor, regularised: torch.Tensor, generation: int) -> dict[str, dict[str, Any]]:
+    """The controllers exported at a task end (and at generation 0), by kind (``metrics.HELD_OUT_LEVELS``):
+    the top individual, the best by selection fitness, and for an ES also the centre and the best
+    sampled solution; each with the generation and its raw and selection fitness."""
+    chosen = {"top": int(regularised.argmax())}
+    centre = optimizer.centre_index
+    if centre is not None:
+        samples = regularised.clone()
+        samples[centre] = -math.inf
+        chosen.update({"centre": centre, "best-sample": int(samples.argmax())})
+    return {kind: {**optimizer.export(index), "generation": generation, "fitness": raw[index].item(),
+                   "selection_fitness": regularised[index].item()} for kind, index in chosen.items()}
+
+
 def _finish_phase(run_dir: RunDir, optimizer, state: LoopState, phase_index: int, name: str,
-                  scores: dict[str, Retention], exported: dict[str, Any]) -> None:
-    """Task end: record C and the retention on every task, write the top controller, and let
-    the optimiser take its regulariser's reference."""
+                  scores: dict[str, Retention], exports: dict[str, dict[str, Any]]) -> None:
+    """Task end: record C and the retention on every task, write the exported controllers (the
+    top one also as the latest, final-top), and let the optimiser take its regulariser's reference."""
     end = {"task": name, "C": scores[name].pop,
            "R_pop": {n: s.pop for n, s in scores.items()}, "R_top": {n: s.top for n, s in scores.items()}}
     if optimizer.centre_index is not None:
         end["R_centre"] = {n: s.centre for n, s in scores.items()}
     state.phase_ends.append(end)
-    run_dir.write_top_controller(phase_index, name, exported)
+    for kind, controller in exports.items():
+        run_dir.write_controller(controller_key(phase_index, name, kind), controller)
+    run_dir.write_controller("final-top", exports["top"])
     optimizer.end_task()
 
 
@@ -250,7 +294,58 @@ def _record_episodes(config, recorder, exported, tasks, generation, phase_index,
 def _checkpoint_payload(config, optimizer, generator, state) -> dict[str, Any]:
     return {"config": config.to_dict(), "optimizer": optimizer.state_dict(), "generator": generator.get_state(),
             "loop": {"generation": state.generation, "phase_ends": state.phase_ends, "initial": state.initial,
+                     "held_out": state.held_out, "first_task_from": state.first_task_from,
                      "wall_time_s": state.wall_time_s}}
+
+
+def _first_task_of(source: RunDir, config: RunConfig) -> dict[str, Any]:
+    """The checkpoint of ``source``'s first task end, once checked that a run of ``config`` may
+    start from it: the two differ in nothing that changes a number but lambda, which no optimiser
+    uses before its first reference (taken at that task end, whatever lambda is); ResumeError,
+    before anything is written, otherwise."""
+    different = [key for key in source.differing_settings(config) if key != "reg"]
+    if different:
+        raise ResumeError(f"--start-from {source.path}: that run differs from this one in more than lambda "
+                          f"({', '.join(different)}), so its first task is not this run's: start this run "
+                          "without --start-from")
+    path = source.first_task_end
+    if not path.is_file():
+        raise ResumeError(f"--start-from {source.path}: it keeps no checkpoint of its first task's end ({path} "
+                          "is missing: it has not reached it, or was made before runs kept it): start this run "
+                          "without --start-from")
+    return checkpoint.load(path)
+
+
+def _take_first_task(config: RunConfig, run_dir: RunDir, source: RunDir, payload: dict[str, Any], optimizer,
+                     generator) -> LoopState:
+    """Make ``run_dir`` hold ``source``'s first task as its own (metrics and species rows, controllers,
+    a checkpoint of this run's configuration at the task's end) and load that state."""
+    own = {**payload, "config": config.to_dict(),
+           "loop": {**payload["loop"], "first_task_from": str(source.path.resolve())}}
+    state = _load_state(own, optimizer, generator)
+    for log in ("metrics", "species"):
+        if getattr(source, log).is_file():
+            shutil.copyfile(getattr(source, log), getattr(run_dir, log))  # GenerationLog cuts it to the task
+    first = config.phases()[0].name
+    controllers = source.read_controllers()
+    for name, exported in controllers.items():
+        if name.startswith((f"{INITIAL}-", f"task0-{first}-")):
+            run_dir.write_controller(name, exported)
+    run_dir.write_controller("final-top", controllers[controller_key(0, first, "top")])
+    run_dir.save_checkpoint(state.generation, own)
+    run_dir.save_first_task_end(own)
+    return state
+
+
+def _load_state(payload: dict[str, Any], optimizer, generator) -> LoopState:
+    """Restore the optimiser and the run's generator from a checkpoint payload; the loop's state."""
+    optimizer.load_state_dict(payload["optimizer"])
+    generator.set_state(payload["generator"])
+    loop = payload["loop"]
+    # a checkpoint written before held-out scoring existed has no held-out scores
+    return LoopState(generation=loop["generation"], phase_ends=loop["phase_ends"], initial=loop["initial"],
+                     held_out=loop.get("held_out", {}), first_task_from=loop.get("first_task_from", ""),
+                     wall_time_s=loop["wall_time_s"])
 
 
 def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopState:
@@ -275,8 +370,4 @@ def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopSta
         raise checkpoint.older_version_error(path)
     if RunConfig.outcome_settings(payload.get("config") or {}) != mine:
         raise ResumeError(f"checkpoint {path} belongs to another configuration: delete it or start a new run")
-    optimizer.load_state_dict(payload["optimizer"])
-    generator.set_state(payload["generator"])
-    loop = payload["loop"]
-    return LoopState(generation=loop["generation"], phase_ends=loop["phase_ends"], initial=loop["initial"],
-                     wall_time_s=loop["wall_time_s"])
+    return _load_state(payload, optimizer, generator)

@@ -12,6 +12,15 @@ number). Booleans: true/false, yes/no, on/off, 1/0 in any case. Integers: decima
 Numbers: decimal, finite. Choices (``Literal``): one of the listed words. Lists: ``[32,16]`` (or
 ``32,16``; ``[]`` is empty). Anything else raises ``envs.ConfigError`` naming the option, the
 value and what is accepted.
+
+Bounds: a number field may declare the range it accepts in its dataclass field's ``metadata``
+(``field(default=500, metadata={"min": 1, "max": 100_000})``): ``min`` and ``max`` (inclusive),
+``above`` (an exclusive lower bound, for "> 0"); for a list they bound each item, and
+``max_items`` its length. ``schema`` hands them on as ``Annotated[type, Bounds]``, so a value
+outside them is refused as it is parsed, before anything is built, and the listing shows them.
+They are the values a researcher would give, with room to spare, so that no value overflows a
+tensor's integers or asks for memory no machine has; the classes' own checks stay, for their
+users in Python.
 """
 from __future__ import annotations
 
@@ -21,9 +30,9 @@ import inspect
 import math
 import re
 import textwrap
-from dataclasses import fields, is_dataclass
+from dataclasses import dataclass, fields, is_dataclass
 from functools import cache
-from typing import Any, Literal, get_args, get_origin, get_type_hints
+from typing import Annotated, Any, Literal, Mapping, get_args, get_origin, get_type_hints
 
 from envs import ConfigError
 
@@ -31,15 +40,66 @@ TRUE_WORDS = ("true", "yes", "on", "1")
 FALSE_WORDS = ("false", "no", "off", "0")
 
 
+@dataclass(frozen=True)
+class Bounds:
+    """The range a number, or each item of a list, must lie in, and at most how many items a list
+    holds: a field's ``metadata`` (see the module docstring)."""
+
+    min: float | None = None
+    max: float | None = None
+    above: float | None = None
+    max_items: int | None = None
+
+    def admits(self, value: Any) -> bool:
+        items = tuple(value) if isinstance(value, (tuple, list)) else (value,)
+        if self.max_items is not None and len(items) > self.max_items:
+            return False
+        return all((self.min is None or item >= self.min) and (self.max is None or item <= self.max)
+                   and (self.above is None or item > self.above) for item in items)
+
+    def describe(self) -> str:
+        """``from 1 to 100000``, ``>= 0``, ``> 0 and <= 1000``."""
+        if self.min is not None and self.max is not None:
+            return f"from {_number(self.min)} to {_number(self.max)}"
+        low = f">= {_number(self.min)}" if self.min is not None else (
+            f"> {_number(self.above)}" if self.above is not None else "")
+        high = f"<= {_number(self.max)}" if self.max is not None else ""
+        return " and ".join(part for part in (low, high) if part)
+
+
+def _number(value: float) -> str:
+    """A bound as one would type it: 4294967295, 0.5, 1e9."""
+    if isinstance(value, int) or (value.is_integer() and abs(value) < 1e8):
+        return str(int(value))
+    return re.sub(r"e\+?0*", "e", f"{value:g}")
+
+
+def bounded(kind: Any, metadata: Mapping[str, Any]) -> Any:
+    """``kind`` with the bounds a field's ``metadata`` declares (``Annotated[kind, Bounds]``), or
+    ``kind`` itself where it declares none."""
+    declared = {key: value for key, value in metadata.items() if key in Bounds.__dataclass_fields__}
+    return Annotated[kind, Bounds(**declared)] if declared else kind
+
+
+def unbounded(kind: Any) -> tuple[Any, Bounds | None]:
+    """``kind`` without its bounds, and the bounds (None where it has none)."""
+    if get_origin(kind) is Annotated:
+        return kind.__origin__, next((m for m in kind.__metadata__ if isinstance(m, Bounds)), None)
+    return kind, None
+
+
 def expected(kind: Any) -> str:
     """What a value of type ``kind`` must look like (in messages and the listing)."""
+    kind, bounds = unbounded(kind)
+    within = f" {bounds.describe()}" if bounds and bounds.describe() else ""
     origin = get_origin(kind)
     if origin is Literal:
         return "one of " + ", ".join(map(str, get_args(kind)))
     if origin in (tuple, list):
-        return f"a list of {_plural(get_args(kind)[0])} like [1,2]"
+        most = f"at most {bounds.max_items} " if bounds and bounds.max_items is not None else ""
+        return f"a list of {most}{_plural(get_args(kind)[0])}{within}, written [a,b,...]"
     return {bool: "a boolean: true/false, yes/no, on/off or 1/0", int: "an integer", float: "a finite number",
-            str: "text"}.get(kind, f"a {getattr(kind, '__name__', kind)}")
+            str: "text"}.get(kind, f"a {getattr(kind, '__name__', kind)}") + within
 
 
 def _plural(kind: Any) -> str:
@@ -47,12 +107,19 @@ def _plural(kind: Any) -> str:
 
 
 def parse_value(kind: Any, value: Any, name: str | None = None) -> Any:
-    """``value`` as type ``kind`` (see the module docstring); otherwise ConfigError saying what
-    ``kind`` accepts, after ``name`` where given."""
+    """``value`` as type ``kind`` (see the module docstring), within its bounds; otherwise
+    ConfigError saying what ``kind`` accepts, after ``name`` where given."""
+    plain_kind, bounds = unbounded(kind)
     try:
-        return _parse(kind, value)
+        parsed = _parse(plain_kind, value)
+        if bounds is not None and not bounds.admits(parsed):
+            raise ValueError
+        return parsed
     except ValueError:
-        refusal = f"{value!r} is not {expected(kind)}"
+        shown = repr(value)
+        if len(shown) > 60:  # a value of thousands of digits: the error stays one readable line
+            shown = shown[:40] + "..." + shown[-10:]
+        refusal = f"{shown} is not {expected(kind)}"
         raise ConfigError(f"{name}: {refusal}" if name else refusal) from None
 
 
@@ -105,9 +172,19 @@ def flag(name: str) -> str:
 
 
 def schema(cls: type) -> dict[str, Any]:
-    """The init fields of dataclass ``cls`` and their types."""
+    """The init fields of dataclass ``cls`` and their types, with their bounds (``bounded``): a
+    field's own, else those of the nearest base class that declares the field with bounds (so a
+    subclass that redeclares a field for another default keeps its bounds)."""
     hints = get_type_hints(cls)
-    return {f.name: hints[f.name] for f in fields(cls) if f.init}
+    return {f.name: bounded(hints[f.name], _metadata(cls, f.name)) for f in fields(cls) if f.init}
+
+
+def _metadata(cls: type, name: str) -> Mapping[str, Any]:
+    for klass in cls.__mro__:
+        declared = getattr(klass, "__dataclass_fields__", {}).get(name)
+        if declared is not None and declared.metadata:
+            return declared.metadata
+    return {}
 
 
 def parse_table(cls: type, values: dict[str, Any], owner: str, setter: str, listed_by: str) -> dict[str, Any]:

@@ -17,6 +17,9 @@ configuration apart from the others plotted (``rundir.config_differences``, e.g.
 A group of several seeds is drawn as the mean over seeds with a shaded min-max band. Colours are
 the task colours. Without ``--out`` the figures go next to the runs they plot: into the deepest
 folder that holds them all (a single run's directory; a sweep's directory for its trials).
+
+Every input is read and checked (each run's metrics.csv and species.csv, the output folder)
+before the first figure is drawn: a bad one is a one-line error with nothing written.
 """
 from __future__ import annotations
 
@@ -168,13 +171,13 @@ def shade_phases(ax, run: Run) -> None:
             start = i
 
 
-def figure_lifespans(run: Run, path: Path, label: str) -> Path | None:
-    """One horizontal bar per species from its first to its last generation; thickness and shade
-    follow its size (members), drifts as dotted lines."""
+def figure_lifespans(run: Run, rows: list[tuple[int, int, int]] | None, path: Path, label: str) -> Path | None:
+    """One horizontal bar per species from its first to its last generation, from the run's
+    species.csv ``rows`` (``Run.species_rows``); thickness and shade follow its size (members),
+    drifts as dotted lines."""
     import matplotlib.pyplot as plt
     from matplotlib.collections import LineCollection
 
-    rows = run.species_rows()
     if not rows:
         return None
     by_species: dict[int, list[tuple[int, int]]] = {}
@@ -228,14 +231,16 @@ def slug(config: dict[str, Any], differences: list[str] = ()) -> str:
     return re.sub(r"[^A-Za-z0-9.]+", "-", text).strip("-")
 
 
-def plot_group(group: list[Run], out: Path, prefix: str, label: str) -> list[Path]:
-    """Every figure of one configuration's runs, titled ``label``; returns the files written."""
+def plot_group(group: list[Run], species: dict[Path, list[tuple[int, int, int]] | None], out: Path, prefix: str,
+               label: str) -> list[Path]:
+    """Every figure of one configuration's runs, titled ``label`` (``species``: each run's
+    species.csv rows, by path); returns the files written."""
     written = [figure_retention(group, "pop", out / f"{prefix}-retention-pop.png", label),
                figure_retention(group, "top", out / f"{prefix}-retention-top.png", label),
                figure_species(group, out / f"{prefix}-species.png", label)]
     for run in group:  # lifespans are per run: one figure per seed
         name = f"{prefix}-lifespans.png" if len(group) == 1 else f"{prefix}-lifespans-seed{run.seed}.png"
-        written.append(figure_lifespans(run, out / name, label))
+        written.append(figure_lifespans(run, species[run.path], out / name, label))
     return [path for path in written if path is not None]
 
 
@@ -249,13 +254,24 @@ def plot_runs(paths, out: str | Path | None = None) -> list[Path]:
         raise UserError("the runs have no metrics.csv rows yet: let a run write some generations first")
     groups = group_runs(runs)
     target = Path(out) if out is not None else Path(os.path.commonpath([r.path.resolve() for r in runs]))
+    species = {run.path: run.species_rows() for run in runs}  # read and checked before anything is drawn
+    check_writable(target)
     configs = [group[0].config for group in groups]
     written = []
     for group in groups:
         differences = config_differences(group[0].config, configs)
-        written += plot_group(group, target, slug(group[0].config, differences),
+        written += plot_group(group, species, target, slug(group[0].config, differences),
                               describe_config(group[0].config, configs))
     return written
+
+
+def check_writable(folder: Path) -> None:
+    """Refuse, before anything is drawn, an output folder that cannot be made or written to."""
+    existing = next(p for p in (folder, *folder.parents) if p.exists())
+    if not existing.is_dir():
+        raise UserError(f"--out {folder}: {existing} is a file, not a folder: give a folder for the figures")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise UserError(f"--out {folder}: {existing} cannot be written to: give a folder you can write to")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

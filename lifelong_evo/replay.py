@@ -18,6 +18,8 @@ from envs import TASKS
 from .config import check_device
 from .episodes import play_episodes
 from .errors import UserError
+from .flags import typed
+from .options import bounded
 from .rerun_recorder import APPLICATION_ID, RerunRecorder, make_blueprint
 from .rundir import RunDir, read_json
 
@@ -83,12 +85,14 @@ def _record(run_dir, config, label: str, task_name: str, played, seeds, controll
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", metavar="RUN", help="run directory")
     parser.add_argument("--task", default=None, help="task to play (default: the run's last task)")
-    parser.add_argument("--episodes", type=int, default=5, help="episodes to play (default: 5)")
+    parser.add_argument("--episodes", type=typed(bounded(int, {"min": 1, "max": 10_000})), default=5,
+                        help="episodes to play, from 1 to 10000 (default: 5)")
     parser.add_argument("--controller", default="final",
                         help="final (default), task<N> (top at the end of phase N), a file stem in "
                              "RUN/controllers/, or a controller .json path")
-    parser.add_argument("--seed", type=int, default=DEFAULT_SEED,
-                        help=f"environment seed of the first episode (default: {DEFAULT_SEED})")
+    # episode i uses seed + i: below 2**63, where the held-out episodes' seeds begin
+    parser.add_argument("--seed", type=typed(bounded(int, {"min": 0, "max": 2**62})), default=DEFAULT_SEED,
+                        help=f"environment seed of the first episode, from 0 to 2**62 (default: {DEFAULT_SEED})")
     parser.add_argument("--device", default="cpu", help="torch device (default: cpu)")
     parser.add_argument("--no-record", dest="record", action="store_false", help="do not write an .rrd")
 

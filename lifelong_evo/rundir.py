@@ -7,8 +7,12 @@
 ``runs/<name>/recording.rrd`` the Rerun recording (``recording-resumed-<G>.rrd``: its continuations)
 ``runs/<name>/checkpoints/``  the last two checkpoints (see ``lifelong_evo.checkpoint``)
 ``runs/<name>/controllers/``  exported controllers (JSON: neat-python genomes or MLP parameters)
+``runs/<name>/.lifelong-evo-run``  the marker written at creation: only a directory with it is
+                              deleted by ``--overwrite``
+``runs/<name>/.lock``         locked by the one process writing the run (``RunLock``)
 
-``RunDir`` names these files and writes them while a run goes; ``MetricsLayout`` spells every
+A run name is one folder name (``check_run_name``), so a run directory is always directly inside
+``--out``. ``RunDir`` names these files and writes them while a run goes; ``MetricsLayout`` spells every
 metrics.csv column and flattens a ``metrics.GenerationRecord`` into a row; ``Run`` (``load_runs``,
 ``group_runs``) is what ``plot``, ``compare`` and ``sweep`` read back. Which runs are repetitions
 of one configuration is ``RunConfig.configuration_settings``.
@@ -16,12 +20,16 @@ of one configuration is ``RunConfig.configuration_settings``.
 from __future__ import annotations
 
 import csv
+import fcntl
 import io
 import json
 import math
+import os
 import platform
 import re
 import shutil
+import socket
+import time
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
@@ -44,8 +52,33 @@ RESOLVED_KEYS = ("env_resolved", "algo_options_resolved", "versions")
 """config.json's keys that are no RunConfig field."""
 
 
+MARKER = ".lifelong-evo-run"
+"""The file ``RunDir.create`` writes first into every run directory: ``--overwrite`` deletes only
+a directory that holds it."""
+LOCK = ".lock"
+"""The file in every run directory that the process writing the run holds locked (``RunLock``)."""
+
+
 class RunDirError(UserError):
     """A run directory, or one of its files, that is missing or not what the contract says."""
+
+
+class RunDirInUseError(RunDirError):
+    """A run directory whose lock another process holds."""
+
+    def __init__(self, path: Path, holder: str):
+        super().__init__(f"run directory {path} is in use by {holder}: wait for it to end (or stop it), "
+                         "or choose another --name")
+
+
+def check_run_name(name: Any, what: str = "--name",
+                   fix: str = "give a folder name, and --out for the folder it goes in") -> str:
+    """``name`` if it is one folder name (not empty, ``.`` or ``..``, without ``/``, ``\\`` or NUL),
+    so that the run directory it names lies directly inside ``--out``; RunDirError otherwise."""
+    if not isinstance(name, str) or name in ("", ".", "..") or any(c in name for c in "/\\\0"):
+        raise RunDirError(f"{what} {name!r} is not one folder name (a run name is not empty, '.' or '..' "
+                          f"and has no / or \\ in it): {fix}")
+    return name
 
 
 def library_versions() -> dict[str, str]:
@@ -77,6 +110,60 @@ def read_json(path: Path) -> Any:
         raise RunDirError(f"{path} is not valid JSON ({error})") from None
 
 
+class RunLock:
+    """The lock of one run directory (its ``LOCK`` file, ``fcntl.flock``), taken at once or refused
+    with RunDirInUseError naming the process that holds it; then the file holds this process's
+    PID and host. The kernel releases it when the process ends, however it ends (SIGKILL too),
+    so a lock left behind never blocks a resume. Release it with ``release`` or a ``with`` block."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self._fd: int | None = None
+        lock_file = path / LOCK
+        try:
+            self._fd = os.open(lock_file, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as error:
+            raise RunDirError(f"cannot lock run directory {path}: {error.strerror} ({lock_file}): "
+                              "choose another --out or --name") from None
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as error:
+            os.close(self._fd)
+            self._fd = None
+            if isinstance(error, BlockingIOError):
+                raise RunDirInUseError(path, lock_holder(lock_file)) from None
+            raise RunDirError(f"cannot lock run directory {path}: {error.strerror}: "
+                              "put --out on a file system that supports locks") from None
+        os.ftruncate(self._fd, 0)
+        os.write(self._fd, json.dumps({"pid": os.getpid(), "host": socket.gethostname()}).encode())
+
+    def release(self) -> None:
+        """Let go of the lock (again: nothing); the file is emptied first, as nobody holds it then."""
+        if self._fd is not None:
+            os.ftruncate(self._fd, 0)
+            os.close(self._fd)  # closing releases the flock
+            self._fd = None
+
+    def __del__(self) -> None:
+        # a run that fails between taking its lock and the loop's ``finally`` lets go of it with this object
+        self.release()
+
+    def __enter__(self) -> RunLock:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+def lock_holder(lock_file: Path) -> str:
+    """The process a run directory's lock file names: ``process 1234 on host node1``."""
+    try:
+        holder = json.loads(lock_file.read_text())
+        return f"process {int(holder['pid'])} on host {holder['host']}"
+    except (OSError, ValueError, TypeError, KeyError):  # taken a moment ago: its PID is not written yet
+        return "another process"
+
+
 class RunDir:
     """The files of one run directory, and the rules for making, writing and reading them."""
 
@@ -89,21 +176,100 @@ class RunDir:
         self.recording = self.path / "recording.rrd"
         self.checkpoints = self.path / "checkpoints"
         self.controllers = self.path / "controllers"
+        self.marker = self.path / MARKER
+        self.lock_file = self.path / LOCK
 
-    def create(self, overwrite: bool) -> None:
+    @classmethod
+    def inside(cls, out: str | Path, name: Any, what: str = "--name", **fix) -> RunDir:
+        """The run directory ``name`` directly inside ``out``; RunDirError unless ``name`` is one
+        folder name (``check_run_name``)."""
+        return cls(Path(out) / check_run_name(name, what, **fix))
+
+    def lock(self) -> RunLock:
+        """This existing run directory's lock, taken (RunDirInUseError where another process holds
+        it): one writer per run directory. ``create`` takes it for a new run."""
+        return RunLock(self.path)
+
+    def in_use_by(self) -> str | None:
+        """The process that holds this run directory's lock (``lock_holder``), or None."""
+        try:
+            fd = os.open(self.lock_file, os.O_RDONLY)
+        except OSError:  # no lock file: nobody has locked it
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return lock_holder(self.lock_file)
+        finally:
+            os.close(fd)
+        return None
+
+    def check_create(self, overwrite: bool) -> None:
+        """What ``create`` refuses, checked without writing anything: a directory another process
+        holds locked (RunDirInUseError), a file where the directory goes, and an existing directory
+        that holds anything (its lock file aside), unless ``overwrite`` and it is a run directory
+        lifelong-evo wrote (it holds the ``MARKER``)."""
+        holder = self.in_use_by()
+        if holder is not None:
+            raise RunDirInUseError(self.path, holder)
+        self._check_contents(overwrite)
+
+    def _check_contents(self, overwrite: bool) -> None:
         if self.path.exists() and not self.path.is_dir():
             raise RunDirError(f"run directory {self.path} is a file: choose another --name or --out")
-        if self.path.exists() and any(self.path.iterdir()):
-            if not overwrite:
-                raise RunDirError(f"run directory {self.path} already exists: pass --resume to continue it, "
-                                  "--overwrite to start it again, or --name for a new one")
-            shutil.rmtree(self.path)
         try:
-            self.checkpoints.mkdir(parents=True, exist_ok=True)
-            self.controllers.mkdir(parents=True, exist_ok=True)
+            if not self.path.exists() or not any(p.name != LOCK for p in self.path.iterdir()):
+                return
+        except OSError as error:
+            raise RunDirError(f"cannot read run directory {self.path}: {error.strerror}: "
+                              "choose another --out or --name") from None
+        if not overwrite:
+            raise RunDirError(f"run directory {self.path} already exists: pass --resume to continue it, "
+                              "--overwrite to start it again, or --name for a new one")
+        if self.path.is_symlink():
+            raise RunDirError(f"{self.path} is a symbolic link: --overwrite deletes only a run directory inside "
+                              "--out; delete it yourself or choose another --name")
+        if not self.marker.is_file():
+            if self.config.is_file():
+                raise RunDirError(f"{self.path} was written before lifelong-evo marked its run directories (no "
+                                  f"{MARKER}), so --overwrite does not delete it: delete it yourself or choose "
+                                  "another --name")
+            raise RunDirError(f"{self.path} was not written by lifelong-evo (no {MARKER} marker): delete it "
+                              "yourself or choose another --name")
+
+    def create(self, overwrite: bool) -> RunLock:
+        """Make the run directory, or with ``overwrite`` empty one that lifelong-evo wrote, and
+        return its lock, held: refused (``check_create``, RunDirInUseError) before anything is
+        written. With ``overwrite`` the lock is taken on the existing directory before anything in
+        it is deleted, so a run still writing there is never touched."""
+        self.check_create(overwrite)
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
         except OSError as error:  # e.g. --out names a file, or a folder this user cannot write
             raise RunDirError(f"cannot make run directory {self.path}: {error.strerror}: "
                               "choose another --out or --name") from None
+        lock = self.lock()
+        try:
+            self._check_contents(overwrite)  # again, locked: another process may have written it meanwhile
+            for entry in self.path.iterdir():
+                if entry.name == LOCK:  # kept: there is no moment without the lock
+                    continue
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.rmtree(entry)
+                else:
+                    entry.unlink()
+            write_json(self.marker, {"written_by": "lifelong-evo", "version": library_versions()["lifelong-evo"],
+                                     "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
+            self.checkpoints.mkdir()
+            self.controllers.mkdir()
+        except OSError as error:
+            lock.release()
+            raise RunDirError(f"cannot make run directory {self.path}: {error.strerror} ({error.filename}): "
+                              "choose another --out or --name") from None
+        except BaseException:
+            lock.release()
+            raise
+        return lock
 
     # -- config.json, summary.json, controllers/ --------------------------------------------------
 
@@ -144,10 +310,13 @@ class RunDir:
         except RunDirError:
             return None
 
-    def write_top_controller(self, phase_index: int, task: str, exported: dict[str, Any]) -> None:
-        """The top individual at the end of phase ``phase_index``, also as the latest (final-top.json)."""
-        write_json(self.controllers / f"task{phase_index}-{task}-top.json", exported)
-        write_json(self.controllers / "final-top.json", exported)
+    def write_controller(self, name: str, exported: dict[str, Any]) -> None:
+        """controllers/<name>.json (names: ``metrics.controller_key``, and ``final-top``)."""
+        write_json(self.controllers / f"{name}.json", exported)
+
+    def read_controllers(self) -> dict[str, dict[str, Any]]:
+        """Every controller in controllers/ by name (file stem), sorted by name."""
+        return {path.stem: read_json(path) for path in sorted(self.controllers.glob("*.json"))}
 
     def find_controller(self, which: str) -> tuple[Path, str]:
         """(controller file, label) for ``which``: ``final``, ``task<N>`` (the top individual at
@@ -180,6 +349,15 @@ class RunDir:
     def latest_checkpoint(self) -> Path | None:
         found = self.checkpoint_files()
         return found[-1] if found else None
+
+    @property
+    def first_task_end(self) -> Path:
+        """A copy of the checkpoint at the first task's end, kept for runs that share the first
+        task (``--start-from``): they differ only in lambda, which acts only after it."""
+        return self.checkpoints / "first-task-end.pt"
+
+    def save_first_task_end(self, payload: dict[str, Any]) -> None:
+        checkpoint.save(self.first_task_end, payload)
 
     def checkpoint_path(self, generation: int) -> Path:
         return self.checkpoints / f"generation-{generation:06d}.pt"
@@ -448,7 +626,8 @@ def configuration_of(config: dict[str, Any]) -> dict[str, Any]:
     not be today's, as NEAT's ``genetics`` shows.) Without a regulariser (``reg == 0``) the
     options that shape only the regulariser (``Optimizer.regularizer_options``) are no setting:
     such runs evolve the same controllers whatever those options say."""
-    values = {k: v for k, v in config.items() if k != "versions"}
+    # a setting that config.json lacks (written before the setting existed) ran at its default
+    values = {**RunConfig().to_dict(), **{k: v for k, v in config.items() if k != "versions"}}
     for given, resolved in RESOLVED:
         if resolved in values:
             values.pop(given, None)

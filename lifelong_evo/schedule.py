@@ -10,6 +10,8 @@ NAMED_SCHEDULES = {
     "four-tasks": ("red", "green", "purple", "cyan"),
 }
 """The paper's schedules; each task runs for ``--generations`` generations."""
+MAX_GENERATIONS = 1_000_000
+"""The most generations a task may run (``--generations`` or a schedule's count): 5000 times the paper's."""
 
 
 class ScheduleError(ValueError):
@@ -46,8 +48,8 @@ def parse_schedule(spec: str, generations: int) -> list[Phase]:
             except ValueError:
                 raise ScheduleError(f"bad generation count {count!r} in schedule item {item!r}: write e.g. red:200") from None
             items.append((name, n))
-    if any(n < 1 for _, n in items):
-        raise ScheduleError(f"every task of schedule {spec!r} needs at least 1 generation")
+    if any(not 1 <= n <= MAX_GENERATIONS for _, n in items):
+        raise ScheduleError(f"every task of schedule {spec!r} needs from 1 to {MAX_GENERATIONS} generations")
     return [Phase(TASKS[name], n) for name, n in items]
 
 

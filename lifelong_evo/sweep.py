@@ -14,12 +14,18 @@ axes too; write a list-valued option in brackets (``--option hidden=[16,16]``, a
 Each trial is an ordinary run (``lifelong_evo.loop.run``) in ``<out>/<sweep>/<trial>/`` with the
 run-directory contract, named from its axes (``neat-reg5-seed13``). The sweep directory also holds
 ``sweep.json`` (grid and trials), ``trials.csv`` (trial, status done/failed/pending, error, wall
-time), ``comparison.md`` (the ``compare`` table of the sweep plus the model-specific lambda rows)
+time), ``comparison.md`` and ``.csv`` (``compare``'s tables of the sweep: each configuration with a
+regulariser against lambda 0, plus the model-specific lambda rows)
 and ``ray.log`` (Ray's messages).
 
 Running the same command again skips finished trials and resumes unfinished ones from their
-checkpoints (``--overwrite`` restarts every trial). A failed trial is recorded and the others go
-on; Ctrl-C cancels the running trials (their checkpoints are kept) and exits with 130.
+checkpoints (``--overwrite`` restarts every trial; like run's, it deletes only a directory that
+lifelong-evo wrote). Each trial holds its run directory's lock while it runs (``rundir.RunLock``):
+a trial another process is running is refused before anything is written. A failed trial is
+recorded and the others go on; Ctrl-C cancels the running trials (their checkpoints are kept)
+and exits with 130, SIGTERM likewise with 143. Before anything is written, the trials that would
+run at once here must fit in this machine's memory (``lifelong_evo.memory``; on a cluster each
+trial checks its node; ``--no-memory-check`` lifts it).
 
 The comparison adds the model-specific lambda ("m.s. reg", ``lifelong_evo.compare``) where the
 grid varies lambda: per configuration without lambda and seed, the lambda whose top individual is
@@ -52,25 +58,26 @@ import argparse
 import contextlib
 import csv
 import io
+import json
 import logging
 import os
 import socket
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
-from . import loop
+from . import loop, memory
 from .checkpoint import atomic_write_bytes
 from .compare import write_comparison
 from .config import RunConfig
-from .errors import UserError
-from .flags import add_run_options
+from .errors import UserError, interrupted_status, terminating_as_interrupt
+from .flags import add_run_options, typed
 from .grid import Grid, Trial, build_grid, default_sweep_name
-from .options import plain
+from .options import bounded, plain
 from .report import duration
 from .rerun_recorder import RerunRecorder
-from .rundir import RunDir, RunDirError, write_json
+from .rundir import RunDir, RunDirError, RunDirInUseError, find_run_dirs, write_json
 
 STATUSES = ("done", "failed", "pending")
 
@@ -83,18 +90,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="sweep directory name under --out (default: the --config file's name, "
                              "else one derived from the grid)")
     parser.add_argument("--out", default="runs", help="parent folder of sweep directories (default: runs)")
-    parser.add_argument("--workers", type=int, default=None,
-                        help="at most this many trials at once (default: as many as the CPUs allow)")
-    parser.add_argument("--gpus-per-trial", type=float, default=0.0, metavar="G",
-                        help="GPUs reserved per trial, e.g. 0.5 (runs use --device cuda; default 0)")
+    parser.add_argument("--workers", type=typed(bounded(int, {"min": 1, "max": 100_000})), default=None,
+                        help="at most this many trials at once, from 1 to 100000 (default: as many as the CPUs allow)")
+    parser.add_argument("--gpus-per-trial", type=typed(bounded(float, {"min": 0, "max": 1024})), default=0.0,
+                        metavar="G", help="GPUs reserved per trial, e.g. 0.5 (runs use --device cuda; default 0)")
     parser.add_argument("--address", default=None, metavar="HOST:PORT",
                         help="run on an existing Ray cluster (or 'auto'); default: a local Ray for the sweep")
-    parser.add_argument("--retries", type=int, default=1,
-                        help="re-run a trial whose worker died this many times, from its checkpoint (default 1)")
+    parser.add_argument("--retries", type=typed(bounded(int, {"min": 0, "max": 100})), default=1,
+                        help="re-run a trial whose worker died this many times (0 to 100), from its checkpoint "
+                             "(default 1)")
     parser.add_argument("--together", action="store_true",
                         help="run the trials in this process, without Ray, their evaluations in one environment "
                              "batch per generation (for one GPU; needs --eval-threads 1)")
-    parser.add_argument("--overwrite", action="store_true", help="restart every trial, finished or not")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="restart every trial, finished or not (only directories lifelong-evo wrote)")
+    parser.add_argument("--share-first-task", action="store_true",
+                        help="a new trial that differs from another run only in --reg starts from that run's first "
+                             "task once it has ended (run --start-from: the same numbers, a third of the paper's "
+                             "schedule saved); the other runs: this sweep's trials (lambda 0 first) and --first-task-from")
+    parser.add_argument("--first-task-from", action="append", default=[], metavar="DIR",
+                        help="with --share-first-task: also take first tasks from the runs under this folder (repeatable)")
     parser.add_argument("--dry-run", action="store_true", help="list the trials and their state, run nothing")
 
 
@@ -105,24 +120,61 @@ def _one_line(error: BaseException) -> str:
     return f"{type(error).__name__}: {lines[0] if lines else ''}".rstrip(": ")
 
 
-def trial_run(config_values: dict[str, Any], path: str, overwrite: bool) -> loop.Lifelong:
+def trial_run(config_values: dict[str, Any], path: str, overwrite: bool,
+              start_from: RunDir | None = None) -> loop.Lifelong:
     """One trial's loop, as ``python -m lifelong_evo run`` would start it (resuming when ``path``
-    holds a run)."""
+    holds a run; a new one from ``start_from``'s first task where given)."""
     run_dir = RunDir(path)
     resume = not overwrite and run_dir.config.exists()
     # a resumed trial continues with the settings it was created with, as run --resume does
     # (trial_state found them equal, perhaps with a default stated in one and left out in the other)
     config = run_dir.read_config() if resume else RunConfig.from_dict(config_values)
     recorder = RerunRecorder.for_run(run_dir, config, resume=resume) if config.record else None
-    return loop.lifelong(config, run_dir, resume=resume, overwrite=overwrite, recorder=recorder, progress="off")
+    return loop.lifelong(config, run_dir, resume=resume, overwrite=overwrite, recorder=recorder, progress="off",
+                         start_from=None if resume else start_from)
 
 
-def run_trial(config_values: dict[str, Any], path: str, overwrite: bool) -> dict[str, Any]:
-    """One trial alone; never raises: an error comes back as ``{"status": "failed", "error": one line}``."""
+def first_task_source(config: RunConfig, candidates: Sequence[str]) -> RunDir | None:
+    """The first of the run directories ``candidates`` whose first task a run of ``config`` may
+    take over (``run --start-from``): it has reached that task's end and differs only in lambda.
+    Looked up when the trial starts, so a source that ended its first task meanwhile counts."""
+    for candidate in map(RunDir, candidates):
+        if candidate.first_task_end.is_file():
+            try:
+                if set(candidate.differing_settings(config)) <= {"reg"}:
+                    return candidate
+            except RunDirError:  # not (yet) a run directory with a readable config.json
+                continue
+    return None
+
+
+def first_task_order(trials: list[Trial]) -> list[Trial]:
+    """``trials`` with the ones that share a first task together, lambda 0 first, in order of
+    first appearance: each regularised trial then runs right after the run it starts from."""
+    groups: dict[str, list[Trial]] = {}
+    for trial in trials:
+        settings = RunConfig.outcome_settings(trial.config.to_dict())
+        settings.pop("reg")
+        groups.setdefault(json.dumps(settings, sort_keys=True), []).append(trial)
+    return [trial for group in groups.values() for trial in sorted(group, key=lambda t: t.config.reg != 0)]
+
+
+def run_trial(config_values: dict[str, Any], path: str, overwrite: bool, memory_check: bool = True,
+              first_task_sources: Sequence[str] = ()) -> dict[str, Any]:
+    """One trial alone; never raises: an error comes back as ``{"status": "failed", "error": one line}``.
+    ``memory_check``: first check that the trial fits in the memory of the node it runs on;
+    ``first_task_sources``: run directories a new trial may take its first task from
+    (``first_task_source``); the result names the one it took, if any."""
     started = time.monotonic()
     try:
-        summary = loop.run_alone(trial_run(config_values, path, overwrite))
-        return {"status": "done", "error": "", "wall_time_s": summary["wall_time_s"]}
+        if memory_check:
+            memory.check([RunConfig.from_dict(config_values)], what=f"trial {Path(path).name}")
+        new = overwrite or not RunDir(path).config.exists()
+        source = first_task_source(RunConfig.from_dict(config_values),
+                                   [s for s in first_task_sources if s != path]) if new else None
+        summary = loop.run_alone(trial_run(config_values, path, overwrite, source))
+        return {"status": "done", "error": "", "wall_time_s": summary["wall_time_s"],
+                "first_task_from": "" if source is None else str(source.path)}
     except Exception as error:  # noqa: BLE001 - the driver records it and goes on
         return {"status": "failed", "error": _one_line(error), "wall_time_s": time.monotonic() - started}
 
@@ -150,10 +202,11 @@ def trial_state(path: Path, config: RunConfig) -> tuple[str, str]:
 def write_trials_csv(sweep_dir: Path, grid: Grid) -> None:
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(["trial", "status", "error", "wall_time_s", *grid.columns])
+    writer.writerow(["trial", "status", "error", "wall_time_s", "first_task_from", *grid.columns])
     for t in grid.trials:
         wall = "" if t.wall_time_s is None else f"{t.wall_time_s:.1f}"
-        writer.writerow([t.name, t.status, t.error, wall, *(t.values.get(k, "") for k in grid.columns)])
+        writer.writerow([t.name, t.status, t.error, wall, t.first_task_from,
+                         *(t.values.get(k, "") for k in grid.columns)])
     atomic_write_bytes(sweep_dir / "trials.csv", buffer.getvalue().encode())
 
 
@@ -309,25 +362,25 @@ def _print(text: str) -> None:
 
 def main(args: argparse.Namespace) -> int:
     grid = build_grid(args)
-    grid.name = grid.name or default_sweep_name(grid)
-    if args.workers is not None and args.workers < 1:
-        raise UserError(f"--workers must be >= 1, got {args.workers}")
-    if args.retries < 0:
-        raise UserError(f"--retries must be >= 0, got {args.retries}")
+    grid.name = default_sweep_name(grid) if grid.name is None else grid.name
     sweep_dir = (Path(args.out) / grid.name).resolve()
     to_run: list[Trial] = []
     resuming: set[str] = set()
     for trial in grid.trials:
         state, why = ("new", "") if args.overwrite else trial_state(sweep_dir / trial.name, trial.config)
         if state == "done":
-            trial.status = "done"
-            trial.wall_time_s = RunDir(sweep_dir / trial.name).read_summary()["wall_time_s"]
+            summary = RunDir(sweep_dir / trial.name).read_summary()
+            trial.status, trial.wall_time_s = "done", summary["wall_time_s"]
+            trial.first_task_from = summary.get("first_task_from", "")
         elif state == "failed":
             trial.status, trial.error = "failed", why
         else:
             to_run.append(trial)
             if state == "resume":
                 resuming.add(trial.name)
+    if args.overwrite:  # as run's, it deletes only run directories lifelong-evo wrote: each checked up front
+        for trial in to_run:
+            RunDir(sweep_dir / trial.name).check_create(overwrite=True)
     axes = ", ".join([*(f"{k} ({len(v)})" for k, v in grid.axes.items()),
                       *(f"{algo}: {k} ({len(v)})" for algo, (a, _) in grid.by_algo.items() for k, v in a.items())]) \
         or "no axes"
@@ -342,10 +395,29 @@ def main(args: argparse.Namespace) -> int:
             _print(f"resume  {trial.name} (from its last checkpoint)")
     if args.together:
         _check_together(args, to_run, sweep_dir)
+    if args.first_task_from and not args.share_first_task:
+        raise UserError("--first-task-from names runs to share first tasks with: add --share-first-task")
+    sources: list[str] = []
+    if args.share_first_task:
+        if args.together:
+            raise UserError("--share-first-task starts a trial from a run that has ended its first task, but "
+                            "--together plays every trial at once: drop one of them")
+        to_run = first_task_order(to_run)
+        sources = [str(sweep_dir / t.name) for t in first_task_order(grid.trials)]
+        for folder in args.first_task_from:
+            sources += [str(path.resolve()) for path in find_run_dirs([folder])]
     if args.dry_run:
         for trial in to_run:
             _print(f"would run {trial.name}")
         return 0
+    for trial in to_run:  # each trial takes its run directory's lock; one still held is in use by another sweep
+        holder = RunDir(sweep_dir / trial.name).in_use_by()
+        if holder is not None:
+            raise RunDirInUseError(sweep_dir / trial.name, holder)
+    if args.memory_check:
+        _check_memory(args, to_run)
+    if to_run and not args.together:
+        _check_token_file()
     # a cluster that cannot be joined is one error line before anything is written
     address = _check_cluster(args.address) if args.address and to_run else None
     sweep_dir.mkdir(parents=True, exist_ok=True)
@@ -353,19 +425,19 @@ def main(args: argparse.Namespace) -> int:
                     "gpus_per_trial": args.gpus_per_trial, "retries": args.retries}
     write_sweep_json(sweep_dir, grid, ray_settings)
     write_trials_csv(sweep_dir, grid)
-    interrupted = False
+    interruption = None
     try:
         if to_run and args.together:
             _run_together(grid, to_run, sweep_dir, args.overwrite)
         elif to_run:
-            _run_trials(args, grid, to_run, sweep_dir, address)
-    except KeyboardInterrupt:  # Ctrl-C: running trials were cancelled; their checkpoints stay
-        interrupted = True
+            _run_trials(args, grid, to_run, sweep_dir, address, sources)
+    except KeyboardInterrupt as stop:  # Ctrl-C or SIGTERM: running trials were cancelled; their checkpoints stay
+        interruption = stop
     write_trials_csv(sweep_dir, grid)
-    if interrupted:
+    if interruption is not None:
         print(f"\ninterrupted: finished trials and checkpoints are kept in {sweep_dir}; "
               "run the same command again to continue", file=sys.stderr)
-        return 130
+        return interrupted_status(interruption)
     table = aggregate(sweep_dir, grid)
     counts = {s: sum(t.status == s for t in grid.trials) for s in STATUSES}
     _print("")
@@ -373,6 +445,38 @@ def main(args: argparse.Namespace) -> int:
     _print(f"\n{counts['done']} done, {counts['failed']} failed; results in {sweep_dir} (trials.csv, sweep.json"
            + (", comparison.md/.csv)" if counts["done"] else ")"))
     return 1 if counts["failed"] else 0
+
+
+def _check_memory(args: argparse.Namespace, to_run: list[Trial]) -> None:
+    """Refuse, before anything is written, trials that cannot fit in this machine's memory as they
+    would run here: all of them in this process (``--together``), else as many at once as the
+    CPUs and ``--workers`` allow, the largest first. On a cluster (``--address``) each trial
+    checks the node it lands on (``run_trial``)."""
+    if not to_run or args.address:
+        return
+    if args.together:
+        memory.check([t.config for t in to_run], together=True, what=f"--together with {len(to_run)} trial(s)")
+        return
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    at_once = min(len(to_run), args.workers or len(to_run), max(1, cores // min(_cpus(t.config) for t in to_run)))
+    largest = sorted(to_run, key=lambda t: memory.estimate(t.config).host(), reverse=True)[:at_once]
+    memory.check([t.config for t in largest], what=f"the sweep, with {at_once} trial(s) at once,")
+
+
+def _check_token_file() -> None:
+    """RAY_AUTH_TOKEN_PATH names the file Ray reads its token from, whenever Ray starts or joins a
+    cluster: one that is missing or empty is one line here, not Ray's traceback."""
+    path = os.environ.get("RAY_AUTH_TOKEN_PATH")
+    if not path:
+        return
+    fix = "copy the cluster's token there (docs/usage.md, On a cluster), or unset RAY_AUTH_TOKEN_PATH"
+    try:
+        token = Path(path).read_text().strip()
+    except (OSError, UnicodeDecodeError) as error:
+        raise UserError(f"RAY_AUTH_TOKEN_PATH is {path}, which cannot be read "
+                        f"({getattr(error, 'strerror', None) or error}): {fix}") from None
+    if not token:
+        raise UserError(f"RAY_AUTH_TOKEN_PATH is {path}, which is empty: {fix}")
 
 
 def _check_together(args: argparse.Namespace, to_run: list[Trial], sweep_dir: Path) -> None:
@@ -429,14 +533,16 @@ def _run_together(grid: Grid, to_run: list[Trial], sweep_dir: Path, overwrite: b
 
 
 def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep_dir: Path,
-                address: str | None) -> None:
-    """Run ``to_run`` on Ray, recording each result as it comes; on Ctrl-C, cancel the running
-    trials (killing their workers) and raise KeyboardInterrupt."""
+                address: str | None, first_task_sources: list[str]) -> None:
+    """Run ``to_run`` on Ray, in that order, recording each result as it comes; on Ctrl-C, cancel
+    the running trials (killing their workers) and raise KeyboardInterrupt."""
     ray, started = _start_ray(args, address)
     in_flight: dict[Any, Trial] = {}
     messages = contextlib.ExitStack()
     try:
         messages.enter_context(_ray_messages_to(sweep_dir / RAY_LOG))
+        # ray.init installs a handler of its own that dies on SIGTERM: SIGTERM must take Ctrl-C's way
+        messages.enter_context(terminating_as_interrupt())
         resources = ray.cluster_resources()
         if args.gpus_per_trial > resources.get("GPU", 0):
             raise UserError(f"the Ray cluster has {resources.get('GPU', 0):g} GPU(s), a trial asks for "
@@ -460,7 +566,8 @@ def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep
                     trial = queue.pop(0)
                     ref = remote.options(num_cpus=_cpus(trial.config), num_gpus=args.gpus_per_trial,
                                          max_retries=args.retries, name=f"trial:{trial.name}").remote(
-                        trial.config.to_dict(), str(sweep_dir / trial.name), args.overwrite)
+                        trial.config.to_dict(), str(sweep_dir / trial.name), args.overwrite, args.memory_check,
+                        first_task_sources)
                     in_flight[ref] = trial
                 ready, _ = ray.wait(list(in_flight), num_returns=1, timeout=1.0)
                 for ref in ready:
@@ -471,8 +578,11 @@ def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep
                         result = {"status": "failed", "error": _one_line(error), "wall_time_s": None}
                     trial.status, trial.error = result["status"], result["error"]
                     trial.wall_time_s = result["wall_time_s"]
+                    trial.first_task_from = result.get("first_task_from", "")
                     finished += 1
                     wall = "" if trial.wall_time_s is None else f" ({duration(trial.wall_time_s)})"
+                    if trial.first_task_from:
+                        wall += f" (first task from {Path(trial.first_task_from).name})"
                     line = f"[{finished}/{len(grid.trials)}] {trial.status:<6} {trial.name}{wall}"
                     _print(line + (f": {trial.error}" if trial.error else ""))
                     write_trials_csv(sweep_dir, grid)

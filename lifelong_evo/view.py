@@ -7,8 +7,11 @@ files. The native viewer is spawned where a display exists (DISPLAY or WAYLAND_D
 ``--grpc-port``) and its address printed: open it in a browser (over ssh, forward both ports).
 The command runs until the viewer closes or Ctrl-C.
 
-Contracts: a web viewer's ports are checked before anything is printed, and one in use is a
-one-line error (exit 2), never a stale viewer behind a fresh address. The viewer process dies with
+Contracts: every file is checked before the viewer starts: one that Rerun cannot read as a
+recording (``rerun.chunk.RrdReader``) is a one-line error (exit 2); one that starts as a recording
+and breaks off (a run killed mid-write) opens, since the viewer reads what is there. A web
+viewer's ports are checked before anything is printed, and one in use is a one-line error (exit
+2), never a stale viewer behind a fresh address. The viewer process dies with
 ``view``, even when ``view`` is killed (on Linux the kernel sends it SIGTERM when its parent dies;
 elsewhere SIGTERM and Ctrl-C reach it through ``view``). Rerun's own log lines are kept out of the
 terminal unless ``--verbose``; when the viewer fails, its last log line is the error.
@@ -34,9 +37,43 @@ from .rundir import RunDir
 HOST = "127.0.0.1"
 
 
+RRD_MAGIC = b"RRF2"
+"""The first bytes of every Rerun 0.41 recording (the FourCC that ``RrdReader`` checks)."""
+
+
+def check_recording(path: Path) -> None:
+    """Refuse ``path`` unless Rerun can read it as a recording: ``RrdReader`` reads it whole, or
+    it begins as one (a recording a killed run cut short, which the viewer reads up to the break)."""
+    import warnings
+
+    from rerun.chunk import RrdReader
+
+    try:
+        with warnings.catch_warnings():  # a file without its footer is read by a scan, with a warning
+            warnings.simplefilter("ignore")
+            RrdReader(path).recordings()
+        return
+    except Exception as error:  # noqa: BLE001 - rerun raises RuntimeError and others; the reason is shown
+        reason = str(error).split(": ", 1)[-1].splitlines()[0] if str(error) else type(error).__name__
+    try:
+        with open(path, "rb") as handle:
+            if handle.read(len(RRD_MAGIC)) == RRD_MAGIC:
+                return
+    except OSError as error:
+        reason = error.strerror or str(error)
+    raise UserError(f"{path} is not a recording Rerun can read ({reason}): give a recording.rrd that a run or "
+                    "replay wrote")
+
+
 def recording_files(target: str | Path, replays: bool = False) -> list[Path]:
-    """The .rrd files to open for RUN (a run directory or an .rrd file)."""
-    path = Path(target)
+    """The .rrd files to open for RUN (a run directory or an .rrd file), each checked (``check_recording``)."""
+    files = _recording_files(Path(target), replays)
+    for file in files:
+        check_recording(file)
+    return files
+
+
+def _recording_files(path: Path, replays: bool) -> list[Path]:
     if path.is_file():
         if path.suffix != ".rrd":
             raise UserError(f"{path} is not an .rrd file: give a run directory or a recording.rrd")

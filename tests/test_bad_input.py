@@ -1,8 +1,10 @@
 """Bad input: every run, ``--env`` and ``--option`` value (and every TOML value) is parsed to its
-option's declared type or refused with one line, ``error: ...``, exit status 2, before anything is
-built or written; a property test generates bad values for every option."""
+option's declared type, within its declared bounds, or refused with one line, ``error: ...``, exit
+status 2, before anything is built or written; so is a run that cannot fit in memory. A property
+test generates bad values for every option: text of another type, and values beyond its bounds."""
 from __future__ import annotations
 
+import math
 import os
 import re
 import subprocess
@@ -17,11 +19,11 @@ from hypothesis import strategies as st
 
 from algorithms import REGISTRY
 from envs import ConfigError, ForagingConfig
-from lifelong_evo import loop
+from lifelong_evo import loop, memory
 from lifelong_evo.cli import build_parser, main
 from lifelong_evo.config import RunConfig, resolve
 from lifelong_evo.flags import resolve_run_config
-from lifelong_evo.options import parse_value, schema
+from lifelong_evo.options import Bounds, parse_value, schema, unbounded
 
 ROOT = Path(__file__).resolve().parents[1]
 BOOLEANS = {"true": True, "yes": True, "on": True, "1": True, "false": False, "no": False, "off": False, "0": False}
@@ -102,9 +104,10 @@ CUDA = torch.cuda.is_available()
     (["--env", "repositioning=nah"], "--env repositioning: 'nah' is not a boolean"),
     (["--option", "nosuchkey=1"], "unknown neat option 'nosuchkey': the neat options are references, "),
     (["--option", "sigma=0.05"], "python -m lifelong_evo options --algo neat describes them"),
-    (["--algo", "openai-es", "--option", "sigma=-1"], "--option sigma must be a number > 0, got -1.0"),
-    (["--algo", "openai-es", "--option", "hidden=abc"], "--option hidden: 'abc' is not a list of integers"),
-    (["--algo", "openai-es", "--option", "hidden=[0]"], "--option hidden must list integers >= 1"),
+    (["--algo", "openai-es", "--option", "sigma=-1"], "--option sigma: '-1' is not a finite number > 0 and <= 1000"),
+    (["--algo", "openai-es", "--option", "hidden=abc"], "--option hidden: 'abc' is not a list of at most 16 integers"),
+    (["--algo", "openai-es", "--option", "hidden=[0]"], "--option hidden: '[0]' is not a list of at most 16 integers "
+                                                        "from 1 to 4096"),
     (["--algo", "openai-es", "--option", "importance=foo"], "--option importance: 'foo' is not one of l2, ewc"),
     (["--env", "duration=abc"], "--env duration: 'abc' is not an integer"),
     (["--env", "size=abc"], "--env size: 'abc' is not a finite number"),
@@ -117,9 +120,161 @@ CUDA = torch.cuda.is_available()
     (["--population", "abc"], "argument --population: 'abc' is not an integer"),
     (["--option", "references"], "--option 'references' is not KEY=VALUE"),
     (["--config", "."], "cannot be read"),
+    # the issue's overflows: each gave a traceback after config.json and metrics.csv were written
+    (["--seed", str(10**23)], "argument --seed: '100000000000000000000000' is not an integer from 0 to 4294967295"),
+    (["--seed", str(2**32)], "is not an integer from 0 to 4294967295"),
+    (["--seed", "-1"], "is not an integer from 0 to 4294967295"),
+    (["--env", f"duration={10**23}"], "--env duration: '100000000000000000000000' is not an integer from 1 to 100000"),
+    (["--env", f"max_retrieves={10**23}"], "--env max_retrieves: '100000000000000000000000' is not an integer from 1 "),
+    (["--algo", "openai-es", "--option", f"hidden=[{10**23}]"], "--option hidden: '[100000000000000000000000]' is not "
+                                                                "a list of at most 16 integers from 1 to 4096"),
+    (["--env", "n_neighbors=1000000"], "--env n_neighbors: '1000000' is not an integer from 1 to 100"),
+    (["--schedule", f"red:{10**23}"], "every task of schedule 'red:100000000000000000000000' needs from 1 to 1000000 "
+                                      "generations"),
+    (["--reg", "1e300"], "argument --reg: '1e300' is not a finite number from 0 to 1e9"),
+    # NEAT keeps 5 genomes per species (elitism): population 1 was a traceback after config.json was written
+    (["--population", "1"], "--population: NEAT with genetics 0.92 needs a population of at least 5 (every species "
+                            "keeps its 5 best genomes: elitism in neat_config.ini), got 1"),
+    (["--population", "9", "--option", "genetics=2.0"], "NEAT with genetics 2.0 needs a population of at least 10 "
+                                                        "(room for two species of 5 genomes"),
+    # a population whose first speciation alone would take terabytes: memory grew with no output
+    (["--population", "1000000"], "needs about "),
 ])
 def test_each_is_one_line_before_anything_is_written(argv, message, tmp_path, capsys):
     assert message in refused(argv, tmp_path / "runs", capsys)
+
+
+def test_a_config_file_that_is_not_utf8_is_one_line(tmp_path, capsys):
+    path = tmp_path / "latin1.toml"
+    path.write_bytes("seed = 1\n# r\xe9glage\n".encode("latin-1"))
+    assert f"config file {path} is not UTF-8 text (byte 12 cannot be decoded): save it as UTF-8" in refused(
+        ["--config", str(path)], tmp_path / "runs", capsys)
+
+
+def test_bounds_are_listed_and_in_help(capsys):
+    assert main(["options", "--algo", "openai-es"]) == 0
+    assert "(a list of at most 16 integers from 1 to 4096, written [a,b,...])" in " ".join(capsys.readouterr().out.split())
+    assert main(["options"]) == 0
+    listed = " ".join(capsys.readouterr().out.split())
+    assert "duration=500 Steps per episode. (an integer from 1 to 100000)" in listed
+    assert "sensitivity=0.5 Pick-up radius (strict), in (0, 0.5]. (a finite number > 0 and <= 0.5)" in listed
+    assert main(["--help"]) == 0
+    assert "(an integer from 0 to 4294967295; default: 42)" in " ".join(capsys.readouterr().out.split())
+
+
+def test_the_seed_bound_keeps_training_streams_below_the_held_out_ones():
+    """Held-out episodes draw from generators seeded from 2**63 up; recorded episodes use
+    seed * 1_000_003 + generation: the largest seed and generation stay below."""
+    seed_max = unbounded(schema(RunConfig)["seed"])[1].max
+    generations_max = unbounded(schema(RunConfig)["generations"])[1].max
+    assert seed_max == 2**32 - 1
+    assert seed_max * 1_000_003 + generations_max * 100 < 2**63
+
+
+# ------------------------------------------------------------------------------------- memory check
+
+def configured_for(*argv: str, preset: str = "paper") -> RunConfig:
+    return resolve_run_config(build_parser().parse_args(["run", *argv, "--preset", preset]))
+
+
+def test_the_paper_and_the_smoke_preset_fit_a_few_gigabytes(monkeypatch):
+    monkeypatch.setattr(memory, "available", lambda: 3 * 2**30)
+    for config in (configured_for(), configured_for("--eval-threads", "2", "--schedule", "four-tasks"),
+                   configured_for("--algo", "sep-cmaes"), configured_for(preset="smoke")):
+        memory.check([config])
+    assert memory.estimate(configured_for()).total < 1.5 * 2**30
+
+
+def test_a_run_that_cannot_fit_is_refused_and_the_flag_overrides(monkeypatch, tmp_path, capsys):
+    monkeypatch.setattr(memory, "available", lambda: 200 * 2**20)
+    err = refused([], tmp_path / "runs", capsys)
+    assert re.fullmatch(r"error: this run needs about \d+ MiB of memory \(most of it for .*\) and this machine has "
+                        r"200 MiB available: lower --population, .* or pass --no-memory-check to run anyway\n", err), err
+    with pytest.raises(AssertionError, match="the run started"):  # loop.run is reached: nothing refused it
+        main(["--preset", "smoke", "--no-record", "--quiet", "--out", str(tmp_path / "runs"), "--no-memory-check"])
+
+
+def test_a_sweep_that_cannot_fit_is_refused_before_it_writes(monkeypatch, tmp_path, capsys):
+    from lifelong_evo import sweep
+
+    out = tmp_path / "sweeps"
+    argv = ["sweep", "--preset", "smoke", "--seed", "1,2,3", "--no-record", "--out", str(out), "--name", "s"]
+    one = memory.estimate(configured_for("--no-record", preset="smoke")).total
+    monkeypatch.setattr(memory, "available", lambda: one + 2**20)  # room for one trial, not for three in one process
+    assert main([*argv, "--together", "--eval-threads", "1"]) == 2
+    assert re.search(r"^error: --together with 3 trial\(s\) needs about \d+ MiB of memory", capsys.readouterr().err, re.M)
+    monkeypatch.setattr(memory, "available", lambda: one - 2**20)
+    assert main([*argv, "--workers", "1"]) == 2
+    assert re.search(r"^error: the sweep, with 1 trial\(s\) at once, needs about", capsys.readouterr().err, re.M)
+    assert not out.exists()
+    # on a cluster each trial checks the node it lands on, and fails with the line
+    result = sweep.run_trial(configured_for(preset="smoke").to_dict(), str(tmp_path / "trial"), False)
+    assert result["status"] == "failed" and result["error"].startswith("UserError: trial trial needs about ")
+    assert not (tmp_path / "trial").exists()
+
+
+def test_on_a_gpu_the_arenas_are_checked_against_its_free_memory(monkeypatch):
+    """No GPU here: the device's free memory is stood in for (torch.cuda.mem_get_info on one)."""
+    from dataclasses import replace
+
+    config = replace(configured_for("--population", "3000"), device="cuda")
+    needs = memory.estimate(config)
+    assert needs.host() == needs.shared + needs.recording < needs.total
+    monkeypatch.setattr(memory, "available", lambda: 64 * 2**30)
+    monkeypatch.setattr(memory, "device_free", lambda device: 2**30)
+    with pytest.raises(memory.UserError, match=r"needs about [\d.]+ GiB of memory on cuda and it has 1.0 GiB free"):
+        memory.check([config])
+    monkeypatch.setattr(memory, "device_free", lambda device: 80 * 2**30)
+    memory.check([config])
+
+
+@pytest.mark.parametrize("argv, grows", [
+    (["--population", "200"], ["--population", "400"]),
+    (["--evals", "2"], ["--evals", "20"]),
+    (["--env", "n_agents=5"], ["--env", "n_agents=50"]),
+    (["--env", "n_boxes=20"], ["--env", "n_boxes=200", "--env", "size=60"]),
+    (["--env", "n_neighbors=3"], ["--env", "n_neighbors=30"]),
+    (["--algo", "cmaes", "--option", "hidden=[16]"], ["--algo", "cmaes", "--option", "hidden=[128]"]),
+    (["--env", "duration=200"], ["--env", "duration=20000"]),
+    (["--schedule", "red-green-red"], ["--schedule", "four-tasks"]),
+])
+def test_the_estimate_grows_with_what_a_run_holds(argv, grows):
+    assert memory.estimate(configured_for(*grows, preset="smoke")).total > memory.estimate(
+        configured_for(*argv, preset="smoke")).total
+
+
+PEAK = """import resource, sys
+from lifelong_evo.cli import main
+code = main(sys.argv[1:])
+print(code, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
+"""
+
+
+@pytest.mark.parametrize("argv", [[], ["--algo", "cmaes", "--option", "hidden=[128]", "--population", "60"],
+                                  ["--algo", "openai-es", "--env", "n_neighbors=100", "--population", "200",
+                                   "--evals", "4"]])
+def test_the_estimate_is_above_the_real_peak(argv, tmp_path, monkeypatch):
+    """The calibration, kept honest: a real run's peak resident memory (``ru_maxrss``) stays below
+    what the check expects (each run in its own process, one generation per task: both tasks are
+    scored at once in each, as at a task end; the peak does not depend on the episode length)."""
+    argv = [*argv, "--schedule", "red:1,green:1", "--env", "duration=20"]  # two tasks scored at once, briefly
+    result = subprocess.run([sys.executable, "-c", PEAK, *argv, "--preset", "smoke", "--quiet", "--out", str(tmp_path),
+                             "--name", "x"], capture_output=True, text=True, cwd=ROOT,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=600)
+    code, peak = result.stdout.split()[-2:]
+    assert code == "0", result.stderr
+    assert int(peak) < memory.estimate(configured_for(*argv, preset="smoke")).total
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--retries", str(10**20)], "argument --retries: '100000000000000000000' is not an integer from 0 to 100"),
+    (["--workers", "0"], "argument --workers: '0' is not an integer from 1 to 100000"),
+    (["--gpus-per-trial", "1e300"], "argument --gpus-per-trial: '1e300' is not a finite number from 0 to 1024"),
+])
+def test_the_sweeps_own_numbers_are_bounded_too(argv, message, tmp_path, capsys):
+    assert main(["sweep", *argv, "--preset", "smoke", "--out", str(tmp_path / "sweeps"), "--dry-run"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {message}") and err.count("\n") == 1, err
 
 
 def test_an_earlier_run_is_left_untouched(tmp_path, capsys):
@@ -150,23 +305,41 @@ NOT_A = {
 }
 """Text that no value of the type is written as."""
 
-OUT_OF_RANGE = {
-    **{name: st.integers(max_value=0) for name in ("generations", "population", "evals", "retention_every",
-                                                    "checkpoint_every", "threads", "eval_threads", "n_agents",
-                                                    "n_neighbors", "duration", "max_retrieves", "references")},
-    "episodes_every": st.integers(max_value=-1),
-    "n_boxes": st.one_of(st.integers(max_value=0), st.integers(min_value=31)),  # 30 fit 2 apart in 20 x 20
-    "reg": st.floats(max_value=-1e-6, min_value=-1e9),
-    "size": st.floats(max_value=7.99, min_value=-1e9),
-    "rate_target": st.one_of(st.floats(max_value=-1e-6, min_value=-1e9), st.floats(min_value=1.001, max_value=1e9)),
-    "sensitivity": st.one_of(st.floats(max_value=0, min_value=-1e9), st.floats(min_value=0.501, max_value=1e9)),
-    **{name: st.floats(max_value=0, min_value=-1e9) for name in ("sensor_range", "max_wheel_velocity", "time_step",
-                                                                 "sigma", "learning_rate")},
-    "hidden": st.lists(st.integers(max_value=0), min_size=1, max_size=3).map(lambda h: str(h)),
-    "colors": st.lists(st.integers(min_value=0, max_value=12), max_size=5).filter(
-        lambda c: c != list(range(3, 3 + len(c))) or not c).map(lambda c: str(c)),
+def _beyond(bounds) -> st.SearchStrategy:
+    """Numbers outside ``bounds`` (an ``options.Bounds``), from just past them to absurd sizes."""
+    sides = []
+    if bounds.min is not None:
+        sides.append(st.integers(max_value=math.ceil(bounds.min) - 1))
+    if bounds.above is not None:
+        sides.append(st.floats(max_value=bounds.above, min_value=-1e300))
+    if bounds.max is not None:
+        sides.append(st.integers(min_value=math.floor(bounds.max) + 1))
+        sides.append(st.sampled_from([10**23, 2**63, 2**64]))  # past every tensor integer
+        if not float(bounds.max).is_integer():
+            sides.append(st.floats(min_value=bounds.max, max_value=1e300, exclude_min=True))
+    return st.one_of(sides)
+
+
+def _out_of_bounds(kind) -> st.SearchStrategy[str] | None:
+    """Text of values of the right type that ``kind``'s declared bounds refuse (None: it has none)."""
+    plain_kind, bounds = unbounded(kind)
+    if bounds is None:
+        return None
+    if get_origin(plain_kind) is tuple:
+        good = st.integers(min_value=int(bounds.min or 1), max_value=int(bounds.min or 1) + 3)
+        bad_item = st.lists(_beyond(Bounds(bounds.min, bounds.max, bounds.above)), min_size=1, max_size=3)
+        too_many = st.lists(good, min_size=bounds.max_items + 1, max_size=bounds.max_items + 3)
+        return st.one_of(bad_item, too_many).map(lambda items: "[" + ",".join(map(str, items)) + "]")
+    return _beyond(bounds).map(str)
+
+
+SEMANTIC = {
+    "population": st.integers(min_value=1, max_value=4),  # NEAT (the default algorithm) keeps 5 elites per species
+    "n_boxes": st.integers(min_value=31, max_value=10_000),  # 30 fit 2 apart in 20 x 20
+    "colors": st.lists(st.integers(min_value=3, max_value=10), min_size=1, max_size=5).filter(
+        lambda c: c != list(range(3, 3 + len(c)))).map(lambda c: str(c)),
 }
-"""Values of the right type that each option refuses."""
+"""Values within the declared bounds that an option still refuses, for a reason of its own."""
 
 TEXT = {
     "algo": st.text().filter(lambda t: t.strip() not in REGISTRY),
@@ -177,17 +350,19 @@ TEXT = {
 
 
 def _bad(name: str, kind) -> st.SearchStrategy[str]:
-    if kind is str:
+    plain_kind = unbounded(kind)[0]
+    if plain_kind is str:
         not_a = TEXT[name]
-    elif get_origin(kind) is Literal:
-        not_a = st.text().filter(lambda t: t.strip() not in get_args(kind))
+    elif get_origin(plain_kind) is Literal:
+        not_a = st.text().filter(lambda t: t.strip() not in get_args(plain_kind))
     else:
-        not_a = NOT_A[kind]
-    return st.one_of(not_a, OUT_OF_RANGE[name].map(str)) if name in OUT_OF_RANGE else not_a
+        not_a = NOT_A[plain_kind]
+    others = [s for s in (_out_of_bounds(kind), SEMANTIC.get(name)) if s is not None]
+    return st.one_of(not_a, *(s.map(str) for s in others))
 
 
 OPTIONS = [*((lambda v, n=n: [f"--{n.replace('_', '-')}={v}"], n, k) for n, k in schema(RunConfig).items()
-             if k not in (bool, dict)),
+             if unbounded(k)[0] not in (bool, dict)),
            *((lambda v, n=n: ["--env", f"{n}={v}"], n, k) for n, k in schema(ForagingConfig).items()),
            *((lambda v, n=n, a=a: ["--algo", a, "--option", f"{n}={v}"], n, k)
              for a in REGISTRY for n, k in schema(REGISTRY[a].Options).items())]
@@ -230,7 +405,7 @@ def test_help_lists_every_option_with_its_default(capsys):
     assert main(["--help"]) == 0
     shown = capsys.readouterr().out
     assert "``" not in shown
-    for expected in ("--population POPULATION", "(default: 300)", "see_other_agents=false", "references=1",
+    for expected in ("--population POPULATION", "default: 300)", "see_other_agents=false", "references=1",
                      "unconnected_outputs=zero", "cmaes, sep-cmaes options", "sigma=0.5", "openai-es options",
                      "learning_rate=0.03", "hidden=[16]"):
         assert expected in shown

@@ -1,5 +1,6 @@
 """The benchmark's contract at a tiny size: its last line is ``s_per_generation=<seconds>``, also for
-the reference step's script (benchmarks/reference_step.py)."""
+the reference step's script (benchmarks/reference_step.py); a bad flag is one line, ``error: ...``,
+exit status 2, before anything is timed."""
 import os
 import re
 import subprocess
@@ -19,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.mark.parametrize("argv", [
     ["--envs", "40", "--also", "20", "--steps", "3", "--eval-threads", "2"],
     ["--algo", "openai-es", "--population", "4", "--evals", "1", "--generations", "1", "--eval-threads", "2"],
-    ["--algo", "neat", "--population", "4", "--evals", "1", "--generations", "1", "--runs", "3"],
+    ["--algo", "neat", "--population", "5", "--evals", "1", "--generations", "1", "--runs", "3"],
 ])
 def test_last_line_is_seconds_per_generation(argv, capsys):
     main(argv)
@@ -81,7 +82,7 @@ def test_reference_step_senses_what_the_env_senses():
 
 def test_the_reference_script_times_its_step(capsys):
     """``python benchmarks/reference_step.py`` runs the environment benchmark on ``ReferenceStep``."""
-    result = subprocess.run([sys.executable, str(ROOT / "benchmarks/reference_step.py"), "--envs", "20", "--also", "",
+    result = subprocess.run([sys.executable, str(ROOT / "benchmarks/reference_step.py"), "--envs", "20", "--also", "[]",
                              "--steps", "2"], capture_output=True, text=True, cwd=ROOT, timeout=300,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert result.returncode == 0, result.stderr
@@ -89,26 +90,59 @@ def test_the_reference_script_times_its_step(capsys):
     assert lines[0].endswith("step=ReferenceStep") and re.fullmatch(r"s_per_generation=\d+\.\d{3}", lines[-1])
 
 
-def test_the_reference_step_with_an_algorithm_is_refused(capsys):
-    with pytest.raises(SystemExit):
-        main(["--algo", "neat"], env_class=ReferenceStep)
-    assert "ReferenceStep is timed as the environment step alone: drop --algo" in capsys.readouterr().err
-
-
-def test_steps_beyond_an_episode_are_refused(capsys):
-    with pytest.raises(SystemExit):
-        main(["--steps", "600"])
-    assert "--steps must be from 1 to 497" in capsys.readouterr().err
-
-
-def test_cuda_graphs_are_refused_off_a_gpu(capsys):
+def refused(argv: list[str], capsys, env_class=ForagingEnv) -> str:
+    """``main(argv)`` exits 2 with one ``error:`` line and times nothing; the line."""
     with pytest.raises(SystemExit) as stop:
-        main(["--cuda-graphs"])
-    assert stop.value.code == 2 and "add --device cuda, or drop --cuda-graphs" in capsys.readouterr().err
+        main(argv, env_class=env_class)
+    captured = capsys.readouterr()
+    assert stop.value.code == 2 and captured.out == "", captured
+    assert captured.err.startswith("error: ") and captured.err.count("\n") == 1, captured.err
+    return captured.err
 
 
-def test_runs_together_need_an_algorithm_and_one_thread(capsys):
-    for argv in (["--runs", "2"], ["--algo", "neat", "--runs", "2", "--eval-threads", "2"], ["--runs", "0"]):
-        with pytest.raises(SystemExit) as stop:
-            main(argv)
-        assert stop.value.code == 2 and "--runs N times N runs" in capsys.readouterr().err
+@pytest.mark.parametrize("argv, message", [
+    # the issue's probes: tracebacks (the first seven) or another workload timed without a word
+    (["--algo", "nosuch"], "unknown algorithm 'nosuch': choose one of neat, cmaes"),
+    (["--algo", "neat", "--population", "0"], "argument --population: '0' is not an integer from 1 to 1000000"),
+    (["--algo", "neat", "--evals", "0"], "argument --evals: '0' is not an integer from 1 to 100000"),
+    (["--algo", "neat", "--generations", "0"], "argument --generations: '0' is not an integer from 1 to 1000"),
+    (["--threads", "0"], "argument --threads: '0' is not an integer from 1 to 1024"),
+    (["--eval-threads", "0"], "argument --eval-threads: '0' is not an integer from 1 to 1024"),
+    (["--device", "nonsense"], "--device 'nonsense' is not a torch device"),
+    (["--also", "a,b"], "argument --also: 'a,b' is not a list of at most 16 integers from 10 to 10000000"),
+    (["--envs", "0"], "argument --envs: '0' is not an integer from 10 to 10000000"),
+    (["--envs", "-5"], "argument --envs: '-5' is not an integer from 10 to 10000000"),
+    (["--also", "0"], "argument --also: '0' is not a list of at most 16 integers from 10 to 10000000"),
+    (["--envs", "25"], "--envs 25: one random controller drives 10 environments, so give multiples of 10"),
+    # the run's own checks
+    (["--algo", "neat", "--population", "3"], "--population: NEAT with genetics 0.92 needs a population of at least 5"),
+    (["--algo", "openai-es", "--population", "3"], "--population: openai-es samples mirrored pairs: the population must "
+                                                   "be even, got 3"),
+    (["--envs", "10000000"], "this benchmark needs about "),
+    (["--algo", "neat", "--population", "1000000", "--generations", "1"], "this benchmark needs about "),
+    (["--steps", "600"], "argument --steps: '600' is not an integer from 1 to 497"),
+    (["--cuda-graphs"], "--cuda-graphs needs --device cuda, not 'cpu': drop --cuda-graphs or run on a GPU"),
+    (["--runs", "2"], "--runs N times N runs of an --algo in one batch"),
+    (["--algo", "neat", "--runs", "2", "--eval-threads", "2"], "--runs N times N runs of an --algo in one batch"),
+    (["--runs", "0"], "argument --runs: '0' is not an integer from 1 to 1000"),
+])
+def test_a_bad_flag_is_one_line(argv, message, capsys):
+    assert message in refused(argv, capsys)
+
+
+def test_the_memory_check_names_the_flag_that_lifts_it(capsys):
+    assert refused(["--envs", "10000000"], capsys).endswith("lower --envs or --also, or pass --no-memory-check to "
+                                                            "time it anyway\n")
+
+
+def test_the_reference_step_with_an_algorithm_is_refused(capsys):
+    assert "ReferenceStep is timed as the environment step alone: drop --algo" in refused(
+        ["--algo", "neat"], capsys, ReferenceStep)
+
+
+def test_the_real_command_line_is_refused_in_one_line(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "lifelong_evo.bench", "--algo", "neat", "--population", "0"],
+                            capture_output=True, text=True, cwd=tmp_path, timeout=300,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr.startswith("error: argument --population: ") and result.stderr.count("\n") == 1

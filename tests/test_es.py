@@ -315,13 +315,21 @@ def test_fisher_window_keeps_the_last_generations():
     assert regularizer.fisher_diagonal() is None  # the next task starts a new window
 
 
-def test_a_checkpoint_from_before_reg_was_named_so_loads():
-    """Regulariser states written as ``lam`` load, and a different lambda is still refused."""
-    state = Regularizer(1.5, n_parameters=2).state_dict()
-    old = {("lam" if key == "reg" else key): value for key, value in state.items()}
-    Regularizer(1.5, n_parameters=2).load_state_dict(old)
-    with pytest.raises(ValueError, match="reg=1.5"):
-        Regularizer(2.0, n_parameters=2).load_state_dict(old)
+def test_a_regulariser_state_carries_the_reference_not_lambda():
+    """Lambda is the run's setting: a state (also one written with ``reg`` or, older, ``lam`` in it)
+    loads into a regulariser of another lambda, which keeps its own lambda and takes the reference
+    and importance; a different reference or importance mode is refused."""
+    written = Regularizer(1.5, n_parameters=2)
+    written.end_task(torch.tensor([1.0, -1.0]))
+    for state in (written.state_dict(), {**written.state_dict(), "reg": 1.5}, {**written.state_dict(), "lam": 1.5}):
+        loaded = Regularizer(4.0, n_parameters=2)
+        loaded.load_state_dict(state)
+        assert loaded.reg == 4.0
+        torch.testing.assert_close(loaded.reference, torch.tensor([1.0, -1.0]))
+        fitness = torch.zeros(1)
+        assert loaded(fitness, torch.tensor([[1.0, 0.0]])).item() == pytest.approx(-4.0 * 0.5)  # (0^2 + 1^2) / 2
+    with pytest.raises(ValueError, match="importance_mode"):
+        Regularizer(1.5, n_parameters=2, importance="ewc").load_state_dict(written.state_dict())
 
 
 def test_regularizer_rejects_bad_options():

@@ -132,28 +132,39 @@ def test_compare_groups_configurations_and_matches_hand_computation(sweep, tmp_p
     from lifelong_evo.compare import compare_table
 
     rows, markdown = compare_table([sweep])
-    configurations = {r["configuration"]: r["n"] for r in rows if r["metric"] == "C phase 0 (red)"}
+    means = [r for r in rows if r["statistic"] == "mean"]
+    configurations = {r["configuration"]: r["n"] for r in means if r["metric"] == "C phase 0 (red)"}
     assert configurations == {"neat reg=1 red-green-red": 2, "openai-es reg=0 red-green-red": 1}
-    by = {(r["algo"], r["metric"]): r for r in rows}
+    by = {(r["algo"], r["episodes"], r["metric"]): r for r in means}
     neat = summaries(sweep, "neat")
-    # current performance of phase 1, both seeds: the mean; with two values the 95% bootstrap
-    # interval is [min, max] (each all-one-value resample has probability 1/4 > 2.5%)
+    # current performance of phase 1, both seeds: the mean; with two values the 95% t-interval is
+    # mean +- t_0.975(1) * |a - b| / 2, t_0.975(1) = 12.706 (a t table)
     values = [s["current"][1] for s in neat]
-    row = by[("neat", "C phase 1 (green)")]
-    assert row["values"] == values
+    row = by[("neat", "training", "C phase 1 (green)")]
+    assert row["values"] == values and row["seeds"] == [1, 2]
     assert row["mean"] == pytest.approx(np.mean(values))
-    assert (row["ci_low"], row["ci_high"]) == pytest.approx((min(values), max(values)))
-    # forgetting of red at the end of phase 1, population and top individual
-    for key in ("R_pop", "F_pop", "R_top", "F_top"):
+    half = 12.7062047 * abs(values[0] - values[1]) / 2
+    assert (row["ci_low"], row["ci_high"]) == pytest.approx((np.mean(values) - half, np.mean(values) + half))
+    # forgetting of red at the end of phase 1, population (training) and top individual (selection-time)
+    for key, kind in (("R_pop", "training"), ("F_pop", "training"), ("R_top", "selection-time"),
+                      ("F_top", "selection-time")):
         values = [next(f[key] for f in s["forgetting"] if f["task"] == "red" and f["at_end_of"] == 1) for s in neat]
-        assert by[("neat", f"{key} red at end of phase 1")]["mean"] == pytest.approx(np.mean(values))
+        assert by[("neat", kind, f"{key} red at end of phase 1")]["mean"] == pytest.approx(np.mean(values))
     for key in ("ACC_pop", "BWT_pop", "FWT_pop", "ACC_top", "BWT_top", "FWT_top"):
-        assert by[("neat", key)]["mean"] == pytest.approx(np.mean([s[key] for s in neat]))
+        kind = "training" if key.endswith("pop") else "selection-time"
+        assert by[("neat", kind, key)]["mean"] == pytest.approx(np.mean([s[key] for s in neat]))
+    # the held-out block's figures, as held-out
+    for key in ("R_top", "F_top"):
+        values = [next(f[key] for f in s["held_out"]["forgetting"] if f["task"] == "red" and f["at_end_of"] == 1)
+                  for s in neat]
+        assert by[("neat", "held-out", f"{key} red at end of phase 1")]["mean"] == pytest.approx(np.mean(values))
+    assert by[("neat", "held-out", "C_top phase 1 (green)")]["values"] == [s["held_out"]["current_top"][1]
+                                                                          for s in neat]
     # a single seed: the value itself, no interval
     es = summaries(sweep, "openai-es")[0]
-    row = by[("openai-es", "F_top green at end of phase 2")]
+    row = by[("openai-es", "selection-time", "F_top green at end of phase 2")]
     expected = next(f["F_top"] for f in es["forgetting"] if f["task"] == "green")
-    assert (row["n"], row["mean"], row["ci_low"], row["ci_high"]) == (1, expected, expected, expected)
+    assert (row["n"], row["mean"]) == (1, expected) and np.isnan(row["ci_low"]) and np.isnan(row["ci_high"])
     assert "| neat reg=1 red-green-red | 2 |" in markdown and "| openai-es reg=0 red-green-red | 1 |" in markdown
     assert f"| phase 0 (red) | {es['current'][0]:.2f} |" in markdown
 
@@ -164,6 +175,9 @@ def test_compare_groups_configurations_and_matches_hand_computation(sweep, tmp_p
         written = list(csv.DictReader(handle))
     assert len(written) == len(rows)
     assert float(written[0]["mean"]) == pytest.approx(rows[0]["mean"])
+    assert written[0]["seeds"] == " ".join(map(str, rows[0]["seeds"]))
+    assert [float(v) for v in written[0]["values"].split()] == rows[0]["values"]
+    assert all(r["ci_low"] == r["ci_high"] == "" for r in written if r["configuration"].startswith("openai-es"))
     assert (out / "comparison-current.png").read_bytes().startswith(PNG)
     assert (out / "comparison-diagnostics.png").read_bytes().startswith(PNG)
     assert (out / "comparison-retention.png").read_bytes().startswith(PNG)  # red's, measured during green
@@ -200,22 +214,34 @@ def test_the_retention_figure_draws_every_task_kept_while_another_is_current(swe
 
 def test_the_papers_table_has_a_line_per_configuration(sweep):
     """One line per configuration in the paper's shape, each cell the estimate of its metric
-    over the seeds: red learnt, green learnt by the top individual, red's retention and
-    forgetting at green's end, red when it returns, transfer and the wall time per run."""
+    over the seeds: per deployed controller (held-out, as these runs have the block) red learnt,
+    green learnt, red's retention and forgetting at green's end, red when it returns, transfer;
+    for the population (training episodes) the same and the wall time per run."""
     from lifelong_evo.compare import Estimate, compare_table
 
     _, markdown = compare_table([sweep])
-    assert ("| configuration | n seeds | red C | green C_top | red R_pop | red F_pop | red R_top | red F_top | "
-            "red C (returns) | ACC_pop | BWT_pop | FWT_pop | wall time per run (min) |") in markdown
+    assert ("| configuration | n seeds | episodes | red C_top | green C_top | red R_top | red F_top | "
+            "red C_top (returns) | ACC_top | BWT_top | FWT_top |") in markdown
+    assert ("| configuration | n seeds | red C | green C | red R_pop | red F_pop | red C (returns) | ACC_pop | "
+            "BWT_pop | FWT_pop | wall time per run (min) |") in markdown
     for algo, label in (("neat", "neat reg=1 red-green-red"), ("openai-es", "openai-es reg=0 red-green-red")):
         runs = summaries(sweep, algo)
         red = [next(f for f in s["forgetting"] if f["task"] == "red" and f["at_end_of"] == 1) for s in runs]
-        cells = [Estimate.of([s["current"][0] for s in runs]), Estimate.of([s["current_top"][1] for s in runs]),
-                 *(Estimate.of([r[key] for r in red]) for key in ("R_pop", "F_pop", "R_top", "F_top")),
+        cells = [Estimate.of([s["current"][0] for s in runs]), Estimate.of([s["current"][1] for s in runs]),
+                 *(Estimate.of([r[key] for r in red]) for key in ("R_pop", "F_pop")),
                  Estimate.of([s["current"][2] for s in runs]),
                  *(Estimate.of([s[key] for s in runs]) for key in ("ACC_pop", "BWT_pop", "FWT_pop")),
                  Estimate.of([s["wall_time_s"] / 60 for s in runs])]
         assert f"| {label} | {len(runs)} | " + " | ".join(map(str, cells)) + " |" in markdown
+        levels = ("top", "centre", "best_sample") if algo == "openai-es" else ("top",)
+        for level in levels:
+            held = [s["held_out"] for s in runs]
+            red = [next(f for f in h["forgetting"] if f["task"] == "red" and f["at_end_of"] == 1) for h in held]
+            cells = [*(Estimate.of([h[f"current_{level}"][i] for h in held]) for i in (0, 1)),
+                     *(Estimate.of([r[f"{key}_{level}"] for r in red]) for key in ("R", "F")),
+                     Estimate.of([h[f"current_{level}"][2] for h in held]),
+                     *(Estimate.of([h[f"{key}_{level}"] for h in held]) for key in ("ACC", "BWT", "FWT"))]
+            assert f"| {label} | {len(runs)} | held-out | " + " | ".join(map(str, cells)) + " |" in markdown, level
 
 
 def test_unfinished_runs_are_counted_as_such(sweep, tmp_path):
@@ -256,20 +282,6 @@ def test_runs_from_before_the_diagnostics_columns(sweep, tmp_path):
     assert cli_main(["compare", str(old), "--out", str(tmp_path / "cmp")]) == 0
     assert (tmp_path / "cmp" / "comparison.md").is_file()
     assert not (tmp_path / "cmp" / "comparison-diagnostics.png").exists()
-
-
-def test_bootstrap_interval():
-    from lifelong_evo.compare import bootstrap_ci
-
-    assert bootstrap_ci([2.0]) == (2.0, 2.0, 2.0)
-    mean, low, high = bootstrap_ci([0.0, 1.0, 2.0, 3.0, 10.0])
-    assert mean == pytest.approx(3.2) and 0.0 < low < mean < high < 10.0
-    assert bootstrap_ci([0.0, 1.0, 2.0, 3.0, 10.0]) == (mean, low, high)  # fixed seed
-    assert bootstrap_ci([1.0, None, 3.0])[0] == 2.0
-    # the definition: 2000 resamples with numpy's generator seeded 0, 2.5 and 97.5 percentiles
-    data = np.array([0.0, 1.0, 2.0, 3.0, 10.0])
-    means = data[np.random.default_rng(0).integers(0, 5, size=(2000, 5))].mean(axis=1)
-    assert (low, high) == tuple(np.percentile(means, [2.5, 97.5]))
 
 
 def test_compare_and_plot_errors_are_one_line(tmp_path, capsys):
@@ -322,3 +334,29 @@ def test_a_broken_species_csv_is_named_too(tmp_path, capsys):
     from lifelong_evo.rundir import load_run
 
     assert load_run(run).species_rows() == [(0, 1, 20)]
+
+
+def test_plot_checks_every_input_before_it_draws(tmp_path, capsys):
+    """A malformed species.csv was found after three PNGs had been written; an --out that is a file
+    was a traceback."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({"algo": "neat", "reg": 0, "schedule": "red:2", "generations": 2}))
+    (run / "summary.json").write_text(json.dumps({"phases": ["red"], "current": [1.5]}))
+    (run / "metrics.csv").write_text("task,task_index,generation,generation_in_task,best,top,species\n"
+                                     "red,0,0,0,1.5,1.5,1\nred,0,1,1,2.5,2.5,1\n")
+    (run / "species.csv").write_text("generation,species_id,size\n0,1,20\n1,one,20\n")
+    out = tmp_path / "out"
+    assert cli_main(["plot", str(run), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "species.csv line 3, column species_id: 'one' is not an integer" in err and err.count("\n") == 1
+    assert not out.exists(), "nothing is drawn before every input is read"
+    (run / "species.csv").write_text("generation,species_id,size\n0,1,20\n1,1,20\n")
+    (tmp_path / "file").write_text("not a folder")
+    for target in (tmp_path / "file", tmp_path / "file" / "below"):
+        assert cli_main(["plot", str(run), "--out", str(target)]) == 2
+        err = capsys.readouterr().err
+        assert err == f"error: --out {target}: {tmp_path / 'file'} is a file, not a folder: give a folder for the figures\n"
+    assert cli_main(["plot", str(run), "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["neat-red-2-reg0-lifespans.png", "neat-red-2-reg0-retention-pop.png",
+                                                     "neat-red-2-reg0-retention-top.png", "neat-red-2-reg0-species.png"]

@@ -3,6 +3,7 @@ episodes; ``view`` argument handling; ``replay``."""
 from __future__ import annotations
 
 import json
+import random
 import os
 import shutil
 import socket
@@ -232,7 +233,9 @@ def test_replay_prints_and_records(es_run, capsys):
 @pytest.mark.parametrize("argv, message", [
     (["--task", "blue"], "unknown task 'blue': choose one of red, green, purple, cyan"),
     (["--controller", "task7"], "no controller 'task7'"),
-    (["--episodes", "0"], "--episodes must be >= 1"),
+    (["--episodes", "0"], "argument --episodes: '0' is not an integer from 1 to 10000"),
+    (["--episodes", str(10**11)], "argument --episodes: '100000000000' is not an integer from 1 to 10000"),
+    (["--seed", str(10**23)], "argument --seed: '100000000000000000000000' is not an integer from 0 to "),
 ])
 def test_replay_errors_are_one_line(es_run, capsys, argv, message):
     assert cli_main(["replay", str(es_run), *argv]) == 2
@@ -286,6 +289,34 @@ def test_view_arguments_and_errors(es_run, tmp_path, capsys, monkeypatch):
         err = capsys.readouterr().err
         assert message in err and err.count("\n") == 1
     assert calls == []
+
+
+def test_view_refuses_what_rerun_cannot_read_before_starting_a_viewer(es_run, tmp_path, capsys, monkeypatch):
+    """A file of random bytes named .rrd started the viewer; a recording cut short by a killed run
+    still opens (the viewer reads it up to the break)."""
+    from lifelong_evo import view
+
+    started = []
+    monkeypatch.setattr(view.subprocess, "Popen", lambda command, **kwargs: started.append(command))
+    noise = tmp_path / "noise.rrd"
+    noise.write_bytes(random.Random(0).randbytes(4096))
+    empty = tmp_path / "empty.rrd"
+    empty.write_bytes(b"")
+    run = tmp_path / "run"
+    shutil.copytree(es_run, run)
+    (run / "recording-resumed-9.rrd").write_bytes(noise.read_bytes())  # a damaged part of a run's recording
+    for target, reason in ((noise, 'Not an RRD file: expected FourCC header "RRF2"'),
+                           (empty, "file too small to be an RRD"), (run, "recording-resumed-9.rrd")):
+        assert cli_main(["view", str(target), "--web"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and "is not a recording Rerun can read" in err and reason in err, err
+        assert err.count("\n") == 1
+    assert started == []
+    whole = (es_run / "recording.rrd").read_bytes()
+    cut = tmp_path / "cut.rrd"
+    cut.write_bytes(whole[:len(whole) // 2])
+    view.check_recording(cut)  # opens: Rerun reads it up to the break
+    view.check_recording(es_run / "recording.rrd")
 
 
 def _free_port() -> int:

@@ -5,14 +5,18 @@ runs into configurations and label them."""
 from __future__ import annotations
 
 import math
+import os
+import socket
 from pathlib import Path
+
+import pytest
 
 from algorithms.neat_genetics import DEFAULT_GENETICS
 from envs import ForagingConfig
 from lifelong_evo.config import RunConfig
 from lifelong_evo.metrics import FitnessStats, GenerationRecord, Retention
-from lifelong_evo.rundir import (GenerationLog, MetricsLayout, Run, RunDir, describe_config, group_runs,
-                                 retention_columns)
+from lifelong_evo.rundir import (LOCK, MARKER, GenerationLog, MetricsLayout, Run, RunDir, RunDirError,
+                                 RunDirInUseError, describe_config, group_runs, retention_columns)
 
 NEAT = MetricsLayout(("red", "green"), species=True, centre=False,
                      diagnostics=("distance_mean", "distance_std", "disabled_fraction"))
@@ -144,3 +148,31 @@ def test_labels_name_what_sets_a_configuration_apart():
                       "openai-es reg=0 red-green-red sigma=0.05 env.see_other_agents=False",
                       "neat reg=0 red-green-red genetics=0.92 env.see_other_agents=True"]
     assert describe_config(neat_092, [neat_092, _config(seed=9)]) == "neat reg=0 red-green-red"
+
+
+# ------------------------------------------------------------------------ names, marker and lock
+
+@pytest.mark.parametrize("name", ["neat-red-green-red-reg11-seed42", "my run", "a.b", "...", ".hidden", "-x"])
+def test_a_run_name_is_any_one_folder_name(tmp_path, name):
+    assert RunDir.inside(tmp_path, name).path == tmp_path / name
+
+
+@pytest.mark.parametrize("name", ["", ".", "..", "a/b", "../x", "/abs", "a\\b", "a\0b", 7])
+def test_a_run_name_that_is_not_one_folder_name_is_refused(tmp_path, name):
+    with pytest.raises(RunDirError, match="is not one folder name"):
+        RunDir.inside(tmp_path, name)
+
+
+def test_one_process_holds_a_run_directory(tmp_path):
+    run = RunDir(tmp_path / "run")
+    lock = run.create(overwrite=False)
+    assert sorted(p.name for p in run.path.iterdir()) == sorted([LOCK, MARKER, "checkpoints", "controllers"])
+    holder = f"process {os.getpid()} on host {socket.gethostname()}"
+    assert run.in_use_by() == holder
+    for taken in (run.lock, lambda: run.create(overwrite=True)):
+        with pytest.raises(RunDirInUseError, match=f"is in use by {holder}"):
+            taken()
+    lock.release()
+    assert run.in_use_by() is None and (run.lock_file).read_text() == ""
+    with run.lock():
+        assert run.in_use_by() == holder

@@ -171,7 +171,7 @@ def test_grid_values_are_typed_as_a_run_types_them(tmp_path, capsys):
         ["hidden8-see_other_agentsFalse", "hidden8-see_other_agentsTrue",
          "hidden8-8-see_other_agentsFalse", "hidden8-8-see_other_agentsTrue"]
     for bad, message in ((["--env", "see_other_agents=no,nah"], "--env see_other_agents: 'nah' is not a boolean"),
-                         (["--option", "hidden=[8],[0]"], "--option hidden must list integers >= 1"),
+                         (["--option", "hidden=[8],[0]"], "--option hidden: '[0]' is not a list of at most 16 integers"),
                          (["--algo", "openai-es,neat", "--option", "sigma=0.05"],
                           "unknown neat option 'sigma'")):
         assert main([*argv, *bad]) == 2
@@ -217,7 +217,8 @@ def test_model_specific_lambda_selection():
     rows, markdown = model_specific_report([selection], {tag: summary for _, summary, tag in runs},
                                            [config for config, _, _ in runs])
     (line,) = [row for row in markdown.splitlines() if row.startswith("| neat reg=m.s.")]
-    assert "| 2 | 1: 5, 2: 0 | 0 (0: 7.00, 5: 6.50, 11: 7.00) | 7.50 [7.00, 8.00] |" in line
+    # the criterion's mean with its t-interval: 7.5 +- t_0.975(1) * |7 - 8| / 2, t_0.975(1) = 12.706
+    assert "| 2 | 1: 5, 2: 0 | 0 (0: 7.00, 5: 6.50, 11: 7.00) | 7.50 [1.15, 13.85] |" in line
     c1 = next(row for row in rows if row["metric"] == "C_top phase 1 (green)")
     assert c1["values"] == [4.0, 6.0] and c1["reg"] == "m.s. 5 0" and c1["mean"] == 5.0
     assert next(row for row in rows if row["metric"] == "C phase 1 (green)")["values"] == [14.0, 16.0]
@@ -396,3 +397,35 @@ def test_together_stopped_by_ctrl_c_resumes_to_the_same_numbers(smoke_sweep, tmp
     assert main(together) == 0
     for name in _trials(tmp_path / "smoke"):
         assert (tmp_path / "smoke" / name / "metrics.csv").read_bytes() == (sweep_dir / name / "metrics.csv").read_bytes()
+
+
+def test_share_first_task_runs_each_pair_in_turn_with_the_numbers_of_separate_runs(local_ray, tmp_path, capsys):
+    """--share-first-task: each lambda > 0 trial runs right after its lambda = 0 sibling and takes
+    over its first task; every trial's files hold the numbers of the sweep without it."""
+    grid = ["sweep", "--algo", "neat", "--reg", "0,2", "--seed", "4,5", "--schedule", "red:2,green:2", *SMOKE,
+            "--out", str(tmp_path), "--workers", "1"]  # one at a time: a source has ended its first task
+    assert main([*grid, "--name", "shared", "--share-first-task", "--dry-run"]) == 0
+    planned = [line.split()[-1] for line in capsys.readouterr().out.splitlines() if line.startswith("would run")]
+    assert planned == ["reg0-seed4", "reg2-seed4", "reg0-seed5", "reg2-seed5"]
+    assert main([*grid, "--name", "shared", "--share-first-task"]) == 0
+    assert main([*grid, "--name", "plain"]) == 0
+    trials = _trials(tmp_path / "shared")
+    for name in trials:
+        source = tmp_path / "shared" / name.replace("reg2", "reg0")
+        assert trials[name]["first_task_from"] == ("" if name.startswith("reg0") else str(source.resolve()))
+        for file in ("metrics.csv", "species.csv", "controllers/task1-green-top.json"):
+            assert (tmp_path / "shared" / name / file).read_bytes() == (tmp_path / "plain" / name / file).read_bytes()
+        held_out = [json.loads((tmp_path / sweep / name / "summary.json").read_text())["held_out"]
+                    for sweep in ("shared", "plain")]
+        assert held_out[0] == held_out[1]
+    # run again: finished trials are skipped, and trials.csv still says where each first task came from
+    assert main([*grid, "--name", "shared", "--share-first-task"]) == 0
+    assert _trials(tmp_path / "shared") == trials
+
+
+def test_first_task_from_needs_share_first_task(tmp_path, capsys):
+    assert main(["sweep", "--algo", "neat", *SMOKE, "--out", str(tmp_path), "--first-task-from", str(tmp_path)]) == 2
+    assert "add --share-first-task" in capsys.readouterr().err
+    assert main(["sweep", "--algo", "neat", *SMOKE, "--out", str(tmp_path), "--share-first-task", "--together",
+                 "--eval-threads", "1"]) == 2
+    assert "drop one of them" in capsys.readouterr().err

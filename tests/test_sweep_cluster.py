@@ -113,3 +113,19 @@ def test_nothing_listening_is_one_line(tmp_path):
                            "with `ray start --head --port=6379` (docs/usage.md, On a cluster), or fix --address\n")
     assert took < 15, "Ray's own client waits 40 s for an address where nothing listens"
     assert not out.exists(), "the sweep wrote before it knew it could run"
+
+
+@pytest.mark.parametrize("where", [[], ["--address", "127.0.0.1:6379"]])
+def test_a_token_path_that_cannot_be_read_is_one_line(tmp_path, where):
+    """RAY_AUTH_TOKEN_PATH naming a missing file was a traceback (from the local Ray's start, after
+    the sweep directory was made); an empty one too."""
+    out = tmp_path / "sweeps"
+    empty = tmp_path / "empty-token"
+    empty.write_text("\n")
+    for path, why in ((tmp_path / "missing-token", "which cannot be read (No such file or directory)"),
+                      (empty, "which is empty")):
+        done, _ = _sweep({**_env(tmp_path), "RAY_AUTH_TOKEN_PATH": str(path)}, *TRIAL, *where, "--out", str(out))
+        assert done.returncode == 2
+        assert done.stderr == (f"error: RAY_AUTH_TOKEN_PATH is {path}, {why}: copy the cluster's token there "
+                               "(docs/usage.md, On a cluster), or unset RAY_AUTH_TOKEN_PATH\n")
+        assert not out.exists(), "the sweep wrote before it knew it could run"

@@ -1,0 +1,276 @@
+"""Nothing a user has is lost: a run name is one folder name inside ``--out`` (for ``run`` and
+``sweep``), ``--overwrite`` deletes only a run directory lifelong-evo wrote (its marker), and one
+process writes a run directory at a time (its lock), which a killed process never keeps.
+
+Every refusal is checked against a snapshot of the whole scratch tree: two finished runs, an
+unrelated folder and the working directory, byte for byte."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from algorithms import REGISTRY
+from lifelong_evo.cli import main
+from lifelong_evo.rundir import LOCK, MARKER, RunDir
+from lifelong_evo.sweep import run_trial
+
+ROOT = Path(__file__).resolve().parents[1]
+SIZE = ["--preset", "smoke", "--no-record", "--generations", "2", "--env", "duration=30"]
+"""A run of a second or two: these tests check the run directory, not learning."""
+RUN = [*SIZE, "--quiet"]
+HOLDER = f"process {os.getpid()} on host {socket.gethostname()}"
+"""How a refusal names this process when it holds a lock."""
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory) -> Path:
+    """A finished run directory, written by the toolkit (so with its marker), to copy."""
+    out = tmp_path_factory.mktemp("finished")
+    assert main([*RUN, "--out", str(out), "--name", "done"]) == 0
+    return out / "done"
+
+
+@pytest.fixture
+def work(tmp_path, finished, monkeypatch) -> Path:
+    """The working directory of the command: ``runs/`` with two finished runs, an unrelated folder."""
+    work = tmp_path / "work"
+    shutil.copytree(finished, work / "runs" / "first")
+    shutil.copytree(finished, work / "runs" / "second")
+    (work / "unrelated").mkdir()
+    (work / "unrelated" / "notes.txt").write_text("keep me")
+    monkeypatch.chdir(work)
+    return work
+
+
+def snapshot(root: Path) -> dict[str, bytes | None]:
+    """Every file (its bytes) and folder (None) under ``root``."""
+    return {str(p.relative_to(root)): None if p.is_dir() else p.read_bytes() for p in sorted(root.rglob("*"))}
+
+
+def refused(argv: list[str], capsys) -> str:
+    """``main(argv)`` exits 2 with one ``error:`` line on stderr and nothing on stdout; the line."""
+    code = main(argv)
+    captured = capsys.readouterr()
+    assert code == 2, captured
+    assert captured.err.startswith("error: ") and captured.err.count("\n") == 1, captured.err
+    assert captured.out == "", captured.out
+    return captured.err
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "lifelong_evo", *args]
+
+
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+
+
+def _wait_for(condition, process: subprocess.Popen) -> None:
+    """Poll until ``condition()`` holds; fails if ``process`` ends first."""
+    deadline = time.monotonic() + 120
+    while not condition():
+        assert process.poll() is None, "the run ended before the test could catch it"
+        assert time.monotonic() < deadline, "the run never got there"
+        time.sleep(0.02)
+
+
+def _holds_lock_and_checkpoint(run: Path, pid: int) -> bool:
+    try:
+        holder = json.loads((run / LOCK).read_text() or "{}")
+    except (OSError, ValueError):
+        return False
+    return holder.get("pid") == pid and any((run / "checkpoints").glob("*.pt"))
+
+
+# ----------------------------------------------------------------------------------------- run names
+
+VERBS = {"run": RUN, "sweep": ["sweep", "--together", *SIZE], "sweep --dry-run": ["sweep", "--dry-run", *SIZE]}
+NAMES = {"dot": ".", "dotdot": "..", "nested": "a/b", "parent": "../x", "absolute": None, "empty": "",
+         "backslash": "a\\b"}
+"""None: the absolute path of the unrelated folder."""
+
+
+@pytest.mark.parametrize("verb", VERBS)
+@pytest.mark.parametrize("name", NAMES)
+def test_a_name_is_one_folder_name_and_nothing_outside_it_is_touched(work, verb, name, capsys):
+    """``--name . --overwrite`` deleted all of runs/, ``--out $PWD/runs --name .. --overwrite`` the
+    working directory, an absolute --name any folder; a/b and ../x escaped --out."""
+    given = NAMES[name] if NAMES[name] is not None else str(work / "unrelated")
+    before = snapshot(work.parent)
+    err = refused([*VERBS[verb], "--out", str(work / "runs"), "--name", given, "--overwrite"], capsys)
+    assert f"--name {given!r} is not one folder name" in err
+    assert snapshot(work.parent) == before
+
+
+def test_a_default_or_trial_name_that_is_no_folder_name_is_refused(work, monkeypatch, capsys):
+    """A name made from the settings (an optimiser registered as ``my/algo``) obeys the same rule."""
+    monkeypatch.setitem(REGISTRY, "my/algo", REGISTRY["neat"])
+    before = snapshot(work.parent)
+    assert "the run name from --algo, --schedule, --reg and --seed 'my/algo-red-green-red-reg0-seed42' is not " \
+        "one folder name" in refused([*RUN, "--algo", "my/algo"], capsys)
+    assert "the trial name 'my/algo-red-green-red-reg0-seed42' is not one folder name" in \
+        refused(["sweep", "--dry-run", *SIZE, "--algo", "my/algo"], capsys)
+    assert snapshot(work.parent) == before
+
+
+def test_a_sweep_files_name_is_checked_too(work, capsys):
+    sweep_file = work / "grid.toml"
+    sweep_file.write_text('name = "../escaped"\n[grid]\nseed = [1, 2]\n')
+    before = snapshot(work.parent)
+    assert "name in grid.toml '../escaped' is not one folder name" in \
+        refused(["sweep", "--dry-run", "--config", "grid.toml", *SIZE], capsys)
+    assert snapshot(work.parent) == before
+
+
+# ----------------------------------------------------------------------------------------- --overwrite
+
+def test_overwrite_refuses_a_folder_lifelong_evo_did_not_write(work, capsys):
+    mine = work / "runs" / "mine"
+    mine.mkdir()
+    (mine / "data.txt").write_text("precious")
+    before = snapshot(work.parent)
+    err = refused([*RUN, "--name", "mine", "--overwrite"], capsys)
+    assert f"{Path('runs/mine')} was not written by lifelong-evo (no {MARKER} marker)" in err
+    assert "delete it yourself or choose another --name" in err
+    # a sweep's --overwrite restarts trials: the same rule for each trial directory, before anything is written
+    (work / "runs" / "grid" / "seed1").mkdir(parents=True)
+    (work / "runs" / "grid" / "seed1" / "data.txt").write_text("precious")
+    before = snapshot(work.parent)
+    err = refused(["sweep", "--together", *SIZE, "--seed", "1,2", "--name", "grid", "--overwrite"], capsys)
+    assert f"{work / 'runs/grid/seed1'} was not written by lifelong-evo" in err
+    assert snapshot(work.parent) == before
+
+
+def test_overwrite_refuses_a_run_written_before_the_marker(work, capsys):
+    old = work / "runs" / "first"
+    (old / MARKER).unlink()
+    (old / LOCK).unlink()
+    before = snapshot(work.parent)
+    err = refused([*RUN, "--name", "first", "--overwrite"], capsys)
+    assert "was written before lifelong-evo marked its run directories" in err
+    assert snapshot(work.parent) == before
+
+
+def test_overwrite_does_not_follow_a_link_out_of_out(work, capsys):
+    (work / "runs" / "link").symlink_to(work / "runs" / "first")
+    before = snapshot(work.parent)
+    assert "is a symbolic link" in refused([*RUN, "--name", "link", "--overwrite"], capsys)
+    assert snapshot(work.parent) == before
+
+
+def test_overwrite_starts_a_run_of_its_own_again_keeping_its_lock_file(work, capsys):
+    run = work / "runs" / "first"
+    (run / "recording.rrd").write_text("from the earlier run")
+    lock_file = (run / LOCK).stat().st_ino
+    assert main([*RUN, "--name", "first", "--overwrite", "--seed", "7"]) == 0
+    assert json.loads((run / "config.json").read_text())["seed"] == 7
+    assert not (run / "recording.rrd").exists()
+    assert json.loads((run / MARKER).read_text())["written_by"] == "lifelong-evo"
+    # the same lock file throughout: there is no moment without the lock
+    assert (run / LOCK).stat().st_ino == lock_file
+    assert (work / "runs" / "second").is_dir() and (work / "unrelated" / "notes.txt").read_text() == "keep me"
+
+
+def test_resume_and_overwrite_together_are_refused(work, capsys):
+    before = snapshot(work.parent)
+    assert "--resume continues a run directory and --overwrite deletes it" in \
+        refused([*RUN, "--name", "first", "--resume", "--overwrite"], capsys)
+    assert snapshot(work.parent) == before
+
+
+# --------------------------------------------------------------------------------- one writer per run
+
+@pytest.mark.parametrize("flags", [[], ["--resume"], ["--resume", "--record"], ["--overwrite"],
+                                   ["--overwrite", "--seed", "7", "--record"]],
+                         ids=["run", "resume", "resume-recording", "overwrite", "overwrite-other-seed"])
+def test_a_locked_run_directory_is_refused_naming_its_holder(work, flags, capsys):
+    """Nothing of the run that holds the lock is deleted or changed, its recording included."""
+    run = RunDir(work / "runs" / "first")
+    with run.lock():
+        before = snapshot(work.parent)
+        code = main([*RUN, "--name", "first", *flags])
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1, err
+        assert f"error: run directory {Path('runs/first')} is in use by {HOLDER}: wait for it to end" in err
+        assert snapshot(work.parent) == before
+    assert run.in_use_by() is None and (run.path / LOCK).read_text() == ""
+
+
+@pytest.mark.parametrize("overwrite", [False, True], ids=["resume", "overwrite"])
+def test_a_sweep_trial_takes_the_lock_too(work, overwrite, capsys):
+    """Ray runs ``run_trial`` in its workers: on a locked directory it fails in one line and
+    writes nothing (the recording included); the sweep itself refuses before it writes anything."""
+    config = RunDir(work / "runs" / "first").read_config()
+    trial = RunDir(work / "runs" / "grid" / config.default_name())  # a grid without axes names it so
+    shutil.copytree(work / "runs" / "first", trial.path)
+    trial.summary.unlink()  # unfinished: the sweep resumes it
+    values = {**config.to_dict(), "record": True}
+    with trial.lock():
+        before = snapshot(work.parent)
+        result = run_trial(values, str(trial.path), overwrite=overwrite)
+        assert result["status"] == "failed" and f"is in use by {HOLDER}" in result["error"], result
+        code = main(["sweep", "--together", *SIZE, "--name", "grid", *(["--overwrite"] if overwrite else [])])
+        err = capsys.readouterr().err
+        assert code == 2 and err == f"error: run directory {trial.path} is in use by {HOLDER}: wait for it to " \
+            "end (or stop it), or choose another --name\n"
+        assert snapshot(work.parent) == before
+
+
+def test_a_run_that_fails_after_taking_its_lock_lets_go_of_it(work, capsys):
+    run = RunDir(work / "runs" / "first")
+    latest = run.checkpoint_files()[-1]
+    latest.write_bytes(latest.read_bytes()[:-1000])  # --resume refuses it after taking the lock
+    assert main([*RUN, "--name", "first", "--resume"]) == 2
+    assert f"checkpoint {latest.relative_to(work)} is corrupt or truncated" in capsys.readouterr().err
+    assert run.in_use_by() is None
+    with run.lock():
+        pass
+
+
+def test_two_real_writers_exactly_one_proceeds(tmp_path):
+    """A running run (stopped with SIGSTOP while it holds its lock, so it cannot finish meanwhile):
+    --resume and --overwrite on it exit 2 naming it, and change nothing; then it finishes."""
+    common = [*SIZE, "--quiet", "--generations", "4", "--checkpoint-every", "1", "--out", str(tmp_path),
+              "--name", "busy"]
+    first = subprocess.Popen(_cli(*common), env=ENV, cwd=ROOT, stdout=subprocess.DEVNULL)
+    run = tmp_path / "busy"
+    try:
+        _wait_for(lambda: _holds_lock_and_checkpoint(run, first.pid), first)
+        first.send_signal(signal.SIGSTOP)
+        before = snapshot(tmp_path)
+        for second in (["--resume"], ["--overwrite", "--seed", "7"]):
+            done = subprocess.run(_cli(*common, *second), env=ENV, cwd=ROOT, capture_output=True, text=True)
+            assert done.returncode == 2, done.stderr
+            assert done.stderr.count("\n") == 1, done.stderr
+            assert f"is in use by process {first.pid} on host {socket.gethostname()}" in done.stderr
+            assert snapshot(tmp_path) == before
+    finally:
+        first.send_signal(signal.SIGCONT)
+    assert first.wait(timeout=120) == 0
+    assert json.loads((run / "config.json").read_text())["seed"] == 42
+    assert len(json.loads((run / "summary.json").read_text())["current"]) == 3
+
+
+def test_a_killed_run_resumes_without_touching_its_lock(tmp_path):
+    """SIGKILL leaves the lock file naming the dead process; the kernel let go of the lock, so
+    --resume goes on, to the metrics of an uninterrupted run."""
+    common = [*SIZE, "--quiet", "--generations", "4", "--checkpoint-every", "2", "--out", str(tmp_path)]
+    subprocess.run(_cli(*common, "--name", "whole"), check=True, env=ENV, cwd=ROOT)
+    killed = subprocess.Popen(_cli(*common, "--name", "killed"), env=ENV, cwd=ROOT)
+    run = tmp_path / "killed"
+    _wait_for(lambda: _holds_lock_and_checkpoint(run, killed.pid), killed)
+    killed.send_signal(signal.SIGKILL)
+    assert killed.wait() == -signal.SIGKILL
+    assert json.loads((run / LOCK).read_text())["pid"] == killed.pid  # left behind by the dead process
+    subprocess.run(_cli("--resume", "--out", str(tmp_path), "--name", "killed", "--quiet", "--no-record"),
+                   check=True, env=ENV, cwd=ROOT)
+    assert (run / "metrics.csv").read_text() == (tmp_path / "whole" / "metrics.csv").read_text()
+    assert (run / LOCK).read_text() == ""

@@ -1,0 +1,66 @@
+"""``--start-from``: a run that differs from another only in lambda takes over that run's first
+task (no optimiser uses lambda before the reference it takes at the first task end) and gives
+the numbers it gets from scratch."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from algorithms import REGISTRY
+from lifelong_evo.cli import main
+
+COMMON = ["--preset", "smoke", "--schedule", "red:3,green:3,red:2", "--env", "duration=100", "--checkpoint-every", "2",
+          "--no-record", "--quiet"]
+
+
+def _files(run) -> dict[str, bytes]:
+    """Every file a run wrote that holds its numbers (summary.json without the wall time)."""
+    files = {path.relative_to(run).as_posix(): path.read_bytes() for path in sorted(run.rglob("*"))
+             if path.is_file() and path.suffix in (".csv", ".json") and path.name != "summary.json"}
+    summary = json.loads((run / "summary.json").read_text())
+    summary.pop("first_task_from", None)  # the run it started from, if any
+    files["summary.json"] = json.dumps({**summary, "wall_time_s": None}).encode()
+    return files
+
+
+VARIANTS = [[name] for name, cls in REGISTRY.items() if cls.has_regularizer] + [
+    ["sep-cmaes", "--option", "importance=ewc"], ["openai-es", "--option", "importance=ewc", "--option", "reference=best"],
+    ["neat", "--option", "genetics=2.0", "--option", "references=2"]]
+"""Every optimiser with a regulariser, and the regularisers' options that keep state of their own."""
+
+
+@pytest.mark.parametrize("algo", VARIANTS, ids=" ".join)
+def test_a_run_started_from_another_lambda_gives_its_own_numbers(tmp_path, algo):
+    def run(*argv):
+        assert main(["--algo", *algo, *COMMON, "--out", str(tmp_path), *argv]) == 0
+
+    run("--reg", "0", "--name", "source")
+    run("--reg", "3", "--name", "alone")
+    run("--reg", "3", "--name", "started", "--start-from", str(tmp_path / "source"))
+    assert json.loads((tmp_path / "started/summary.json").read_text())["first_task_from"] == \
+        str((tmp_path / "source").resolve())
+    alone, started = _files(tmp_path / "alone"), _files(tmp_path / "started")
+    assert json.loads(alone.pop("config.json")) == json.loads(started.pop("config.json"))
+    assert alone == started
+    # the regulariser acted after the first task: the runs differ from the source there
+    metrics = [(tmp_path / name / "metrics.csv").read_text().splitlines() for name in ("source", "started")]
+    assert metrics[0][:4] == metrics[1][:4] and metrics[0][4:] != metrics[1][4:]
+
+
+def test_start_from_refuses_a_run_that_differs_in_more_than_lambda(tmp_path, capsys):
+    assert main(["--algo", "neat", *COMMON, "--out", str(tmp_path), "--name", "source"]) == 0
+    capsys.readouterr()
+    for argv, message in ((["--seed", "7"], "seed"), (["--resume"], "drop --start-from"),
+                          (["--start-from", str(tmp_path / "nothing")], "does not exist")):
+        start = [] if "--start-from" in argv else ["--start-from", str(tmp_path / "source")]
+        assert main(["--algo", "neat", "--reg", "2", *COMMON, "--out", str(tmp_path), "--name", "new", *start,
+                     *argv]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and err.count("\n") == 1 and message in err, err
+        assert not (tmp_path / "new").exists()
+    (tmp_path / "source/checkpoints/first-task-end.pt").unlink()
+    assert main(["--algo", "neat", "--reg", "2", *COMMON, "--out", str(tmp_path), "--name", "new", "--start-from",
+                 str(tmp_path / "source")]) == 2
+    assert "keeps no checkpoint of its first task" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
