@@ -8,7 +8,7 @@ from __future__ import annotations
 from .base import BatchedPolicy, GenerationReport, Optimizer, OptimizerOptions
 from .cmaes import CMAES, SepCMAES
 from .es import ESOptimizer
-from .neat_optimizer import NeatOptimizer
+from .neat import NeatOptimizer
 from .openai_es import OpenAIES
 from .pgpe import PGPE
 from .snes import SNES
@@ -40,7 +40,7 @@ def make_optimizer(name: str, *, obs_dim: int, population_size: int, seed: int,
 def policy_from_export(exported: dict, device: str = "cpu") -> BatchedPolicy:
     """A one-controller policy from what ``Optimizer.export`` wrote (NEAT genome or MLP)."""
     if exported.get("format") == "neat-python-genome":
-        from .neat_export import policy_from_export as neat_policy
+        from .neat.export import policy_from_export as neat_policy
 
         return neat_policy(exported, device)
     if "layer_sizes" in exported:

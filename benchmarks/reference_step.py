@@ -118,6 +118,6 @@ class ReferenceStep:
 
 
 if __name__ == "__main__":
-    from lifelong_evo.bench import main
+    from lifelong_evo.commands.bench import main
 
     main(env_class=ReferenceStep)

@@ -1,7 +1,8 @@
 """The batched swarm-foraging environment and its Gymnasium / PettingZoo adapters."""
 from .config import (COLOR_IDS, COLOR_NAMES, COLOR_RGB, TASKS, UNKNOWN_RGB, ConfigError, ForagingConfig, Task,
                      color_rgb, colors_for_tasks, task_by_name, task_rgb)
-from .foraging import ForagingEnv, ForagingState, outputs_to_wheels
+from .foraging import ForagingEnv, outputs_to_wheels
+from .state import ForagingState
 
 __all__ = ["COLOR_IDS", "COLOR_NAMES", "COLOR_RGB", "TASKS", "UNKNOWN_RGB", "ConfigError", "ForagingConfig",
            "ForagingEnv", "ForagingState", "Task", "color_rgb", "colors_for_tasks", "outputs_to_wheels",

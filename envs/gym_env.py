@@ -28,7 +28,8 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from .config import TASKS, ConfigError, ForagingConfig, Task, color_rgb, task_by_name
-from .foraging import ForagingEnv, ForagingState
+from .foraging import ForagingEnv
+from .state import ForagingState
 
 ENV_ID = "lifelong_evo/SwarmForaging-v0"
 DEFAULT_TASK = "red"

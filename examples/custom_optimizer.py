@@ -18,7 +18,7 @@ import torch
 
 from algorithms import REGISTRY, GenerationReport, Optimizer, OptimizerOptions
 from algorithms.mlp import MLPPolicy, layer_sizes_for, n_parameters
-from lifelong_evo.cli import main
+from lifelong_evo.commands.cli import main
 
 
 @dataclass(frozen=True)

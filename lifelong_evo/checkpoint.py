@@ -3,7 +3,7 @@
 A checkpoint file is the line ``HEADER``, the SHA-256 digest (32 bytes) of the rest, and a
 ``torch.save`` file of the payload, read back with ``torch.load(weights_only=True)``, which
 rebuilds only tensors and plain containers. Every optimiser's state is of that form (NEAT's as
-JSON text, see ``algorithms.neat_state``), so a checkpoint needs nothing from the machine that
+JSON text, see ``algorithms.neat.state``), so a checkpoint needs nothing from the machine that
 wrote it: a run directory copied elsewhere resumes there. The digest is a checksum, not a
 signature: torch does not check its own file for damage, and a flipped bit must not resume a
 run with different numbers.

@@ -66,3 +66,9 @@ def interrupted_status(interruption: KeyboardInterrupt) -> int:
     """The exit status after ``interruption``: 143 for SIGTERM, 130 for Ctrl-C."""
     terminated = isinstance(interruption, Terminated) or _terminated.is_set()
     return 128 + (signal.SIGTERM if terminated else signal.SIGINT)
+
+
+def one_line(error: BaseException) -> str:
+    """``error`` as one line: its class and the first line of its message (for a failed trial's report)."""
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    return f"{type(error).__name__}: {lines[0] if lines else ''}".rstrip(": ")

@@ -27,18 +27,13 @@ from algorithms import make_optimizer, policy_from_export
 from . import checkpoint
 from .config import RunConfig, check_device
 from .episodes import play_episodes
-from .errors import UserError
 from .evaluate import Evaluation, evaluate_together, update_threads
 from .held_out import score_controllers
 from .metrics import INITIAL, FitnessStats, GenerationRecord, Retention, controller_key, retention, summarise
 from .progress import Progress
 from .recording import Recorder
-from .rundir import GenerationLog, MetricsLayout, RunDir, read_json
+from .rundir import GenerationLog, MetricsLayout, ResumeError, RunDir
 from .schedule import Phase, distinct_tasks
-
-
-class ResumeError(UserError):
-    """A run directory that this configuration cannot continue."""
 
 
 @dataclass
@@ -303,10 +298,11 @@ def _first_task_of(source: RunDir, config: RunConfig) -> dict[str, Any]:
     start from it: the two differ in nothing that changes a number but lambda, which no optimiser
     uses before its first reference (taken at that task end, whatever lambda is); ResumeError,
     before anything is written, otherwise."""
-    different = [key for key in source.differing_settings(config) if key != "reg"]
+    different = [difference for difference in source.setting_differences(config.to_dict())
+                 if not difference.startswith("--reg ")]
     if different:
         raise ResumeError(f"--start-from {source.path}: that run differs from this one in more than lambda "
-                          f"({', '.join(different)}), so its first task is not this run's: start this run "
+                          f"({'; '.join(different)}), so its first task is not this run's: start this run "
                           "without --start-from")
     path = source.first_task_end
     if not path.is_file():
@@ -349,12 +345,7 @@ def _load_state(payload: dict[str, Any], optimizer, generator) -> LoopState:
 
 
 def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopState:
-    stored = RunConfig.outcome_settings(read_json(run_dir.config))
-    mine = RunConfig.outcome_settings(config.to_dict())
-    different = sorted(k for k in mine if stored.get(k) != mine[k])
-    if different:
-        raise ResumeError(f"{run_dir.path} was run with other settings ({', '.join(different)} differ): "
-                          "resume without changing them, or start a new run with --name")
+    run_dir.continuation(config.to_dict())  # ResumeError unless config is the run's own
     found = run_dir.checkpoint_files()
     if not found:
         print(f"note: no checkpoint in {run_dir.checkpoints}: resuming from generation 0", file=sys.stderr)
@@ -368,6 +359,6 @@ def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopSta
         raise checkpoint.CorruptCheckpointError(f"{error}; {advice}") from None
     if "pickle" in (payload.get("optimizer") or {}):
         raise checkpoint.older_version_error(path)
-    if RunConfig.outcome_settings(payload.get("config") or {}) != mine:
+    if RunConfig.outcome_settings(payload.get("config") or {}) != RunConfig.outcome_settings(config.to_dict()):
         raise ResumeError(f"checkpoint {path} belongs to another configuration: delete it or start a new run")
     return _load_state(payload, optimizer, generator)

@@ -30,7 +30,7 @@ import re
 import shutil
 import socket
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import metadata
 from pathlib import Path
 from typing import Any, Iterable
@@ -61,6 +61,15 @@ LOCK = ".lock"
 
 class RunDirError(UserError):
     """A run directory, or one of its files, that is missing or not what the contract says."""
+
+
+class ResumeError(RunDirError):
+    """A run directory that these settings cannot continue, or start from."""
+
+
+def _as_stored(value: Any) -> Any:
+    """``value`` as config.json holds it (tuples are lists; 11 and 11.0 compare equal)."""
+    return json.loads(json.dumps(value))
 
 
 class RunDirInUseError(RunDirError):
@@ -286,19 +295,52 @@ class RunDir:
         return RunConfig.from_dict({k: v for k, v in values.items() if k not in RESOLVED_KEYS},
                                    str(self.config))
 
-    def differing_settings(self, config: RunConfig) -> list[str]:
-        """The settings that change a run's numbers (``RunConfig.outcome_settings``) in which
-        ``config`` differs from the one this run was created with; compared resolved where
-        config.json says how the run resolved them, so a default stated in one and left out in
-        the other is the same setting."""
-        stored = read_json(self.config)
-        mine = RunConfig.outcome_settings(config.to_dict())
-        theirs = RunConfig.outcome_settings(stored)
-        resolved = {"env": config.env_config().to_dict(), "algo_options": config.algo_options_resolved()}
-        for given, written in RESOLVED:
-            if written in stored and given in mine:
-                mine[given], theirs[given] = json.loads(json.dumps(resolved[given])), stored[written]
-        return sorted(k for k in mine if theirs.get(k) != mine[k])
+    def setting_differences(self, stated: dict[str, Any]) -> list[str]:
+        """Each setting that would change this run's numbers in which ``stated`` differs from the
+        settings the run was created with, as ``--flag value (stored: value)``: the one rule by which
+        a run is continued (``continuation``) or another run takes over its first task
+        (``loop.lifelong``'s ``start_from``).
+
+        ``stated``: settings as a command gives them (some of ``RunConfig``'s fields, their values
+        typed or as text; ``env`` and ``algo_options`` key by key) or a whole configuration
+        (``RunConfig.to_dict()``, a sweep's trial). The statement is laid over the stored settings
+        and validated (ConfigError for a bad value); then every setting but the output settings is
+        compared, the environment and the optimiser's options resolved as config.json says the run
+        resolved them, so a default stated in one and left out in the other is one setting."""
+        stored = self.read_config()
+        written = read_json(self.config)
+        algo = stated.get("algo", stored.algo)
+        keep_options = stored.algo_options if algo == stored.algo else {}  # another optimiser's options mean nothing
+        given = replace(stored, **{k: v for k, v in stated.items() if k not in ("env", "algo_options")},
+                        env={**stored.env, **stated.get("env", {})},
+                        algo_options={**keep_options, **stated.get("algo_options", {})}).validate(machine=False)
+        differences = []
+        for name, value in RunConfig.outcome_settings(given.to_dict()).items():
+            if name in ("env", "algo_options"):
+                flag, mine = ("--env", given.env_config().to_dict()) if name == "env" else \
+                    ("--option", given.algo_options_resolved())
+                theirs = written.get(f"{name}_resolved") or (stored.env_config().to_dict() if name == "env"
+                                                             else {**stored.algo_options_resolved()})
+                mine, theirs = _as_stored(mine), _as_stored(theirs)
+                differences += [f"{flag} {key}={mine.get(key)!r} (stored: {theirs[key]!r})" if key in theirs
+                                else f"{flag} {key}={mine.get(key)!r} (stored: not set)"
+                                for key in sorted(set(mine) | set(theirs)) if mine.get(key) != theirs.get(key)]
+            elif _as_stored(value) != _as_stored(getattr(stored, name)):
+                differences.append(f"--{name.replace('_', '-')} {value!r} (stored: {getattr(stored, name)!r})")
+        return differences
+
+    def continuation(self, stated: dict[str, Any]) -> RunConfig:
+        """The configuration to continue this run with: the one it was created with, and the output
+        settings ``stated`` gives (``RunConfig.OUTPUT_SETTINGS``: they change no number). Any other
+        setting ``stated`` gives must be the stored one (``setting_differences``), else ResumeError
+        naming each difference with both values."""
+        differences = self.setting_differences(stated)
+        if differences:
+            raise ResumeError(f"{self.path} was run with other settings than these: {'; '.join(differences)}: "
+                              "continue it with its stored settings (drop those flags or give the stored "
+                              "values), or start a new run (another --name, or --overwrite to replace it)")
+        outputs = {name: stated[name] for name in RunConfig.OUTPUT_SETTINGS if name in stated}
+        return replace(self.read_config(), **outputs).validate(machine=False)
 
     def write_summary(self, summary: dict[str, Any]) -> None:
         write_json(self.summary, summary)

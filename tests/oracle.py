@@ -13,7 +13,7 @@ Implementation choices of the project that the spec leaves open and that this or
   its observation is the sensing of the frozen arena (a box dropped in the ending step appears).
 
 The module also holds small helpers that convert between this oracle's per-environment state
-and the batched ``envs.foraging.ForagingState``.
+and the batched ``envs.ForagingState``.
 """
 from __future__ import annotations
 
@@ -243,7 +243,7 @@ def batched_state_from(states: list[OracleState], n_colors: int, dtype=None):
     """A batched ``ForagingState`` (float64 unless ``dtype``) from oracle states."""
     import torch
 
-    from envs.foraging import ForagingState
+    from envs import ForagingState
 
     dtype = dtype or torch.float64
     season = torch.zeros(len(states), n_colors, dtype=torch.bool)

@@ -12,7 +12,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.test import parallel_api_test
 
 import envs
-from envs import ENV_ID, ConfigError, ForagingConfig, ForagingEnv, TASKS
+from envs import ENV_ID, TASKS, ConfigError, ForagingConfig, ForagingEnv
 from envs.gym_env import observation_bounds, torch_seed
 
 EIGHT = {"colors": tuple(range(3, 11)), "task": "cyan"}

@@ -12,7 +12,7 @@ import torch
 
 from benchmarks.reference_step import ReferenceStep
 from envs import TASKS, ForagingConfig, ForagingEnv, ForagingState
-from lifelong_evo.bench import main
+from lifelong_evo.commands.bench import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -31,7 +31,7 @@ def test_last_line_is_seconds_per_generation(argv, capsys):
 
 def test_algo_under_compile_prints_the_eager_figure_first(monkeypatch, capsys):
     """``--algo X --compile`` times X eagerly, then compiled; the last line is the compiled figure."""
-    import lifelong_evo.bench as bench
+    import lifelong_evo.commands.bench as bench
     calls = []
 
     def fake_bench_algo(algo, population, n_envs, generations, device, compiled, eval_threads=1, cuda_graphs=False,
@@ -141,7 +141,7 @@ def test_the_reference_step_with_an_algorithm_is_refused(capsys):
 
 
 def test_the_real_command_line_is_refused_in_one_line(tmp_path):
-    result = subprocess.run([sys.executable, "-m", "lifelong_evo.bench", "--algo", "neat", "--population", "0"],
+    result = subprocess.run([sys.executable, "-m", "lifelong_evo.commands.bench", "--algo", "neat", "--population", "0"],
                             capture_output=True, text=True, cwd=tmp_path, timeout=300,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert result.returncode == 2 and result.stdout == ""

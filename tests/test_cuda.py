@@ -15,7 +15,7 @@ import torch
 from algorithms import REGISTRY, make_optimizer
 from algorithms.mlp import MLPPolicy, layer_sizes_for, n_parameters
 from envs import TASKS, ForagingConfig, ForagingEnv, outputs_to_wheels
-from lifelong_evo.cli import main
+from lifelong_evo.commands.cli import main
 from lifelong_evo.evaluate import evaluate
 
 try:

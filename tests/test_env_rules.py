@@ -19,9 +19,11 @@ from envs import TASKS, ConfigError, ForagingConfig, ForagingEnv, Task, outputs_
 from envs.foraging import _remainder, hash31, respawn_cells
 
 try:
-    from oracle import A, OracleState, batched_state_from, hash31 as py_hash31, respawn_cell
+    from oracle import A, OracleState, batched_state_from, respawn_cell
+    from oracle import hash31 as py_hash31
 except ImportError:  # tests/ imported as a package
-    from tests.oracle import A, OracleState, batched_state_from, hash31 as py_hash31, respawn_cell
+    from tests.oracle import A, OracleState, batched_state_from, respawn_cell
+    from tests.oracle import hash31 as py_hash31
 
 F64 = torch.float64
 # inverse of the spec's kinematic matrix: wheels for a wanted (vx, vy, r)

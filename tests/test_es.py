@@ -8,8 +8,7 @@ from evotorch.algorithms import CMAES as EvoCMAES
 
 from algorithms import REGISTRY, ESOptimizer
 from algorithms.mlp import MLPPolicy
-from algorithms.regularizers import (FISHER_WINDOW, Regularizer, gaussian_sensitivity, penalty,
-                                     regularised_fitness)
+from algorithms.regularizers import FISHER_WINDOW, Regularizer, gaussian_sensitivity, penalty, regularised_fitness
 
 ES_ALGORITHMS = {name: cls for name, cls in REGISTRY.items() if issubclass(cls, ESOptimizer)}
 ALGOS = sorted(ES_ALGORITHMS)

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from algorithms import REGISTRY
-from lifelong_evo.cli import main
+from lifelong_evo.commands.cli import main
 from lifelong_evo.config import load_toml, resolve
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"

@@ -11,7 +11,7 @@ import torch
 
 from envs import TASKS
 from lifelong_evo import evaluate, held_out, loop
-from lifelong_evo.cli import main
+from lifelong_evo.commands.cli import main
 from lifelong_evo.config import resolve
 from lifelong_evo.rundir import RunDir
 

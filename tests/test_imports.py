@@ -1,6 +1,8 @@
-"""The layering, read from the source with ``ast`` (nothing is imported): the environment and the
-optimisers never import the lifelong tools, and no module of the project imports, directly or
-through others, a module that imports it, counting the imports inside functions too."""
+"""The layering, read from the source with ``ast`` (nothing is imported): commands -> run core ->
+algorithms and envs. The environment and the optimisers never import the lifelong tools, the run
+core (``lifelong_evo`` outside ``commands/``) never imports a command, only the Ray module imports
+Ray, and no module of the project imports, directly or through others, a module that imports it,
+counting the imports inside functions too."""
 from __future__ import annotations
 
 import ast
@@ -15,7 +17,28 @@ def _module_name(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-MODULES = {_module_name(path): path for package in PACKAGES for path in sorted((ROOT / package).glob("*.py"))}
+MODULES = {_module_name(path): path for package in PACKAGES for path in sorted((ROOT / package).rglob("*.py"))}
+ENTRY_POINTS = ("lifelong_evo.__main__", "lifelong_evo.bench")
+"""``python -m lifelong_evo`` and ``python -m lifelong_evo.bench``: they only hand over to a command."""
+RAY_MODULE = "lifelong_evo.commands.ray_cluster"
+
+
+def _imported(name: str) -> set[str]:
+    """Every module name that module ``name`` imports, anywhere in its source, as written (absolute)."""
+    path = MODULES[name]
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[:len(package.split(".")) - node.level + 1]
+                base = ".".join([*anchor, *([base] if base else [])])
+            found.update(f"{base}.{alias.name}" for alias in node.names)
+            found.add(base)
+    return found
 
 
 def _imports(name: str) -> set[str]:
@@ -36,7 +59,7 @@ def _imports(name: str) -> set[str]:
         else:
             continue
         for target in targets:
-            while target and target not in MODULES:  # ``import lifelong_evo.cli.main`` is lifelong_evo.cli
+            while target and target not in MODULES:  # ``import lifelong_evo.commands.cli.main`` is lifelong_evo.commands.cli
                 target = target.rpartition(".")[0]
             if target and target != name:
                 found.add(target)
@@ -52,6 +75,19 @@ def test_the_environment_and_the_optimisers_never_import_the_lifelong_tools():
     assert not {k: v for k, v in offending.items() if v}
     assert not [t for t in GRAPH["envs"] | set().union(*(GRAPH[n] for n in MODULES if n.startswith("envs.")))
                 if t.split(".")[0] == "algorithms"], "the environment knows nothing of the optimisers"
+
+
+def test_the_run_core_never_imports_a_command():
+    core = [name for name in MODULES if name.split(".")[0] == "lifelong_evo"
+            and not name.startswith("lifelong_evo.commands") and name not in ENTRY_POINTS]
+    assert "lifelong_evo.loop" in core and "lifelong_evo.rundir" in core
+    offending = {name: sorted(t for t in GRAPH[name] if t.startswith("lifelong_evo.commands")) for name in core}
+    assert not {k: v for k, v in offending.items() if v}
+
+
+def test_only_the_ray_module_imports_ray():
+    importers = sorted(name for name in MODULES if any(t == "ray" or t.startswith("ray.") for t in _imported(name)))
+    assert importers == [RAY_MODULE]
 
 
 def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -95,4 +131,4 @@ def test_no_import_cycles():
 
 def test_the_cycle_finder_finds_one():
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
-    assert "lifelong_evo.loop" in GRAPH["lifelong_evo.cli"] and "algorithms.es" in GRAPH["algorithms.cmaes"]
+    assert "lifelong_evo.loop" in GRAPH["lifelong_evo.commands.cli"] and "algorithms.es" in GRAPH["algorithms.cmaes"]

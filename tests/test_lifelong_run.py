@@ -20,7 +20,7 @@ import pytest
 import torch
 
 from algorithms import REGISTRY
-from lifelong_evo.cli import main
+from lifelong_evo.commands.cli import main
 from lifelong_evo.metrics import Retention, retention, summarise
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -420,7 +420,7 @@ def test_resume_takes_the_original_command(smoke_runs, tmp_path, capsys):
     capsys.readouterr()
     assert main([*original, "--name", "neat", "--resume", "--population", "50", "--env", "duration=100"]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("error: --resume continues") and err.count("\n") == 1
+    assert err.startswith(f"error: {tmp_path / 'neat'} was run with other settings") and err.count("\n") == 1
     assert "--population 50 (stored: 20)" in err and "--env duration=100 (stored: 60)" in err
     assert main([*original, "--name", "neat", "--resume", "--option", "genetics=2.0"]) == 2
     assert "--option genetics='2.0' (stored: '0.92')" in capsys.readouterr().err

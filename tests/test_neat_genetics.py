@@ -1,4 +1,4 @@
-"""neat-python 0.92's genetics (``algorithms.neat_genetics``): gene for gene what neat-python
+"""neat-python 0.92's genetics (``algorithms.neat.genetics``): gene for gene what neat-python
 0.92 itself evolves (0.92 is installed with pip into a directory of the test session's own and
 run in a subprocess), and each difference from neat-python 2.0 on its own."""
 from __future__ import annotations
@@ -16,9 +16,9 @@ import torch
 from neat.graphs import creates_cycle
 from neat.innovation import InnovationTracker
 
-from algorithms.neat_genetics import GENETICS, Neat092ConnectionGene, check_genetics
-from algorithms.neat_network import build_neat_config, neat_config_path
-from algorithms.neat_optimizer import NeatOptimizer
+from algorithms.neat import NeatOptimizer
+from algorithms.neat.config import build_neat_config, neat_config_path
+from algorithms.neat.genetics import GENETICS, Neat092ConnectionGene, check_genetics
 
 try:
     from neat092_reference import fitness, snapshot

@@ -16,13 +16,15 @@ import pytest
 import torch
 from neat.innovation import InnovationTracker
 
-from algorithms.neat_genetics import GENETICS
-from algorithms.neat_network import (
+from algorithms.neat.config import build_neat_config
+from algorithms.neat.genetics import GENETICS
+from algorithms.neat.network import (
     CompiledPopulation,
     _add_weighted,
-    build_neat_config,
     compile_genomes,
+    fill_tensors,
     genome_layers,
+    layout_genomes,
     neat_sigmoid,
 )
 
@@ -368,6 +370,26 @@ def test_padding_does_not_change_a_genome():
     for i, g in enumerate(genomes):
         alone = compile_genomes([g], config)(obs[i:i + 1])
         assert torch.allclose(alone, together[i:i + 1], atol=1e-6)
+
+
+def test_the_layout_reads_the_structure_only():
+    """``layout_genomes`` places nodes by which nodes and enabled connections a genome has: other
+    weights (zero among them), biases and responses leave it as it was, and ``fill_tensors`` on
+    it is ``compile_genomes``."""
+    random.seed(9)
+    config = _fresh_config(overrides=HEAVY)
+    genomes = _mutated_genomes(config, 10, 0, 150)
+    gc = config.genome_config
+    layout = layout_genomes(genomes, gc, "zero")
+    assert layout.n_hidden > 0 and len(layout.blocks) >= 3
+    for g in genomes:
+        for c in g.connections.values():
+            c.weight = 0.0
+        for n in g.nodes.values():
+            n.bias, n.response = random.uniform(-5, 5), random.uniform(0.5, 2)
+    assert layout_genomes(genomes, gc, "zero") == layout
+    obs = _observations(len(genomes), 2, 3, 41, torch.Generator().manual_seed(10))
+    assert torch.equal(fill_tensors(genomes, layout, gc)(obs), compile_genomes(genomes, config)(obs))
 
 
 def test_shard_gives_the_populations_outputs():

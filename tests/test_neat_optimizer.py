@@ -11,11 +11,11 @@ import neat
 import pytest
 import torch
 
-from algorithms import neat_state
 from algorithms.base import GenerationReport
-from algorithms.neat_genetics import GENETICS, Neat092Genome, Neat092Reproduction
-from algorithms.neat_network import Reproduction, build_neat_config
-from algorithms.neat_optimizer import NeatOptimizer
+from algorithms.neat import NeatOptimizer
+from algorithms.neat import state as neat_state
+from algorithms.neat.config import build_neat_config
+from algorithms.neat.genetics import GENETICS, Neat092Genome, Neat092Reproduction, Reproduction
 
 POP = 40
 
@@ -453,7 +453,7 @@ def _subclassed_config(num_inputs, pop_size, genetics):
 def test_state_of_subclassed_genomes_and_genes(monkeypatch):
     """Genome and gene subclasses (another genetics) are rebuilt as the configuration's classes,
     with the attributes they add."""
-    monkeypatch.setattr("algorithms.neat_optimizer.build_neat_config", _subclassed_config)
+    monkeypatch.setattr("algorithms.neat.optimizer.build_neat_config", _subclassed_config)
     obs = _obs(seed=6)
     a = NeatOptimizer(obs_dim=41, population_size=POP, seed=12, genetics="2.0")  # the classes above are 2.0's
     for _ in range(2):

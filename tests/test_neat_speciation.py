@@ -1,4 +1,4 @@
-"""Batched genetic distances and the speciation on them (``algorithms.neat_speciation``): equal
+"""Batched genetic distances and the speciation on them (``algorithms.neat.speciation``): equal
 bit for bit to neat-python's own distances, species and runs."""
 from __future__ import annotations
 
@@ -9,10 +9,11 @@ import neat
 import pytest
 import torch
 
-from algorithms import neat_network, neat_speciation
-from algorithms.neat_genetics import GENETICS
-from algorithms.neat_optimizer import NeatOptimizer
-from algorithms.neat_speciation import DistanceCache, GenomeTable
+from algorithms.neat import NeatOptimizer
+from algorithms.neat import genetics as neat_genetics
+from algorithms.neat import speciation as neat_speciation
+from algorithms.neat.genetics import GENETICS
+from algorithms.neat.speciation import DistanceCache, GenomeTable
 
 try:
     from neat092_reference import fitness, snapshot
@@ -101,7 +102,7 @@ def test_runs_are_unchanged_by_batching(genetics, monkeypatch):
     monkeypatch.setattr(DistanceCache, "prepare", lambda self, selves, others: None)
     assert _run(genetics)[0] == batched
     if genetics == "2.0":
-        monkeypatch.setattr(neat_network, "SpeciesSet", neat.DefaultSpeciesSet)
+        monkeypatch.setattr(neat_genetics, "SpeciesSet", neat.DefaultSpeciesSet)
         unbatched, _earlier, opt = _run(genetics)
         assert type(opt.species) is neat.DefaultSpeciesSet
         assert unbatched == batched

@@ -19,9 +19,9 @@ from pathlib import Path
 import pytest
 
 from algorithms import REGISTRY
-from lifelong_evo.cli import main
+from lifelong_evo.commands.cli import main
+from lifelong_evo.commands.sweep import run_trial
 from lifelong_evo.rundir import LOCK, MARKER, RunDir
-from lifelong_evo.sweep import run_trial
 
 ROOT = Path(__file__).resolve().parents[1]
 SIZE = ["--preset", "smoke", "--no-record", "--generations", "2", "--env", "duration=30"]

@@ -3,8 +3,8 @@ episodes; ``view`` argument handling; ``replay``."""
 from __future__ import annotations
 
 import json
-import random
 import os
+import random
 import shutil
 import socket
 import subprocess
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lifelong_evo.cli import main as cli_main
+from lifelong_evo.commands.cli import main as cli_main
 
 rerun_chunk = pytest.importorskip("rerun.chunk")
 
@@ -94,8 +94,8 @@ def check_episodes(run: Path, rows: dict[str, list[dict]]) -> None:
     with the loop's seeds: same agent positions, box counts, cumulative reward."""
     from algorithms import policy_from_export
     from envs import TASKS
+    from lifelong_evo.commands.rerun_recorder import expected_episode_paths
     from lifelong_evo.episodes import play_episodes
-    from lifelong_evo.rerun_recorder import expected_episode_paths
     from lifelong_evo.rundir import RunDir
 
     config = RunDir(run).read_config()
@@ -169,7 +169,7 @@ def test_es_recording_and_resume_writes_a_second_part(es_run, tmp_path):
     resumed = read_rrd(second)
     assert {g for e, r in resumed.items() if e.startswith("curves/current/") for g in scalar_series(resumed, e)} \
         == set(range(generation, 9))
-    from lifelong_evo.view import recording_files
+    from lifelong_evo.commands.view import recording_files
 
     assert recording_files(run) == [run / "recording.rrd", second]
 
@@ -178,10 +178,10 @@ def test_paper_scale_recording_stays_small(tmp_path):
     """600 generations and episodes of 500 steps at three task ends (the paper's run; 1, 2, 2
     tasks), logged through the recorder: far below 50 MB."""
     from envs import TASKS
+    from lifelong_evo.commands.rerun_recorder import RerunRecorder, expected_episode_paths, make_blueprint
     from lifelong_evo.config import resolve
     from lifelong_evo.episodes import Episode
     from lifelong_evo.metrics import FitnessStats, GenerationRecord, Retention
-    from lifelong_evo.rerun_recorder import RerunRecorder, expected_episode_paths, make_blueprint
 
     config = resolve("paper", {}, {"algo": "neat"})
     path = tmp_path / "big.rrd"
@@ -249,7 +249,7 @@ def test_replay_of_a_missing_run(tmp_path, capsys):
 
 
 def test_view_arguments_and_errors(es_run, tmp_path, capsys, monkeypatch):
-    from lifelong_evo import view
+    from lifelong_evo.commands import view
 
     calls = []
 
@@ -294,7 +294,7 @@ def test_view_arguments_and_errors(es_run, tmp_path, capsys, monkeypatch):
 def test_view_refuses_what_rerun_cannot_read_before_starting_a_viewer(es_run, tmp_path, capsys, monkeypatch):
     """A file of random bytes named .rrd started the viewer; a recording cut short by a killed run
     still opens (the viewer reads it up to the break)."""
-    from lifelong_evo import view
+    from lifelong_evo.commands import view
 
     started = []
     monkeypatch.setattr(view.subprocess, "Popen", lambda command, **kwargs: started.append(command))
@@ -367,7 +367,7 @@ def test_killed_view_takes_its_viewer_along(es_run):
     """SIGKILL leaves ``view`` no chance to stop the viewer: the viewer must go by itself and free
     the ports, so that the next ``view`` serves its own recording there. Rerun's log stays out of
     the output without --verbose."""
-    from lifelong_evo.view import port_in_use
+    from lifelong_evo.commands.view import port_in_use
 
     port, grpc_port = _free_port(), _free_port()
     parent = _view(str(es_run), "--web", "--port", str(port), "--grpc-port", str(grpc_port))
@@ -416,8 +416,8 @@ def small_episode(task: str, steps: int = 6, agents: int = 5, boxes: int = 4):
 
 def test_episodes_off_the_schedule_update_the_blueprint(tmp_path, monkeypatch):
     from envs import TASKS
+    from lifelong_evo.commands.rerun_recorder import RerunRecorder
     from lifelong_evo.config import resolve
-    from lifelong_evo.rerun_recorder import RerunRecorder
     from lifelong_evo.rundir import RunDir
 
     monkeypatch.delenv("LIFELONG_EVO_RERUN", raising=False)

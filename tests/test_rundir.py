@@ -11,12 +11,23 @@ from pathlib import Path
 
 import pytest
 
-from algorithms.neat_genetics import DEFAULT_GENETICS
+from algorithms.neat.genetics import DEFAULT_GENETICS
 from envs import ForagingConfig
 from lifelong_evo.config import RunConfig
 from lifelong_evo.metrics import FitnessStats, GenerationRecord, Retention
-from lifelong_evo.rundir import (LOCK, MARKER, GenerationLog, MetricsLayout, Run, RunDir, RunDirError,
-                                 RunDirInUseError, describe_config, group_runs, retention_columns)
+from lifelong_evo.rundir import (
+    LOCK,
+    MARKER,
+    GenerationLog,
+    MetricsLayout,
+    Run,
+    RunDir,
+    RunDirError,
+    RunDirInUseError,
+    describe_config,
+    group_runs,
+    retention_columns,
+)
 
 NEAT = MetricsLayout(("red", "green"), species=True, centre=False,
                      diagnostics=("distance_mean", "distance_std", "disabled_fraction"))

@@ -8,7 +8,7 @@ import json
 import pytest
 
 from algorithms import REGISTRY
-from lifelong_evo.cli import main
+from lifelong_evo.commands.cli import main
 
 COMMON = ["--preset", "smoke", "--schedule", "red:3,green:3,red:2", "--env", "duration=100", "--checkpoint-every", "2",
           "--no-record", "--quiet"]

@@ -1,4 +1,4 @@
-"""The statistics of ``compare`` (``lifelong_evo.statistics``) against hand-computed values, and
+"""The statistics of ``compare`` (``lifelong_evo.commands.statistics``) against hand-computed values, and
 ``compare``'s use of them on small made-up run directories: pairing by seed, Welch, the baseline,
 held-out against training figures, the order of the seeds."""
 from __future__ import annotations
@@ -12,10 +12,16 @@ from pathlib import Path
 import pytest
 from scipy import stats
 
-from lifelong_evo.cli import main as cli_main
+from lifelong_evo.commands.cli import main as cli_main
+from lifelong_evo.commands.statistics import (
+    paired_difference,
+    paired_seeds_for_power,
+    sign_flip_p,
+    t_interval,
+    unpaired_seeds_for_power,
+    welch_difference,
+)
 from lifelong_evo.metrics import held_out_summary
-from lifelong_evo.statistics import (paired_difference, paired_seeds_for_power, sign_flip_p, t_interval,
-                                     unpaired_seeds_for_power, welch_difference)
 
 T_975_4 = 2.7764451
 """Student's t, 97.5% quantile, 4 degrees of freedom (any t table: 2.776)."""
@@ -367,7 +373,7 @@ def test_the_paper_genetics_study(capsys):
     selection-time (the runs have no held-out block): the issue's t-intervals, R_top +6.8
     [-4.1, 17.8] and green C_top -10.4 [-23.4, 2.7]; the exact sign-flip p-values are 4/32 and
     2/32 (every difference has the same sign but one zero, and green's are all negative)."""
-    from lifelong_evo.compare import compare_table
+    from lifelong_evo.commands.compare import compare_table
 
     _, markdown = compare_table([REPO / "docs" / "data" / "paper-genetics"])
     assert "| red R_top | selection-time | +6.84 [-4.15, +17.83] | 0.125 | +0.77 | 5 | 16 |" in markdown

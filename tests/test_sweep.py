@@ -12,11 +12,16 @@ from pathlib import Path
 import pytest
 
 from envs import ForagingConfig
-from lifelong_evo.cli import build_parser, main
-from lifelong_evo.compare import model_specific_label, model_specific_report, select_model_specific, selection_score
+from lifelong_evo.commands.cli import build_parser, main
+from lifelong_evo.commands.grid import build_grid
+from lifelong_evo.commands.model_specific import (
+    model_specific_label,
+    model_specific_report,
+    select_model_specific,
+    selection_score,
+)
+from lifelong_evo.commands.sweep import run_trial, trial_state
 from lifelong_evo.config import RunConfig
-from lifelong_evo.grid import build_grid
-from lifelong_evo.sweep import run_trial, trial_state
 
 ray = pytest.importorskip("ray")
 
@@ -97,7 +102,7 @@ def test_second_invocation_skips_finished_trials(smoke_sweep, capsys):
     assert main(stated) == 0 and capsys.readouterr().out.count("skipped") == 4
     trial = build_grid(build_parser().parse_args([*stated[:-1], "n_agents=4"])).trials[0]
     state, why = trial_state(sweep_dir / trial.name, trial.config)
-    assert state == "failed" and "env differ" in why
+    assert state == "failed" and "--env n_agents=4 (stored: 5)" in why
 
 
 def test_an_unfinished_trial_resumes_with_the_settings_it_was_created_with(smoke_sweep, tmp_path, capsys):
@@ -321,7 +326,7 @@ def test_rays_driver_messages_go_to_the_sweeps_log(tmp_path, capsys):
     in ray.log, and nothing reaches the sweep's output."""
     from ray._private import worker
 
-    from lifelong_evo.sweep import RAY_LOG, _ray_messages_to
+    from lifelong_evo.commands.ray_cluster import RAY_LOG, _ray_messages_to
 
     original = worker.print_to_stdstream
     with _ray_messages_to(tmp_path / RAY_LOG):
@@ -347,7 +352,7 @@ def test_a_trial_sharing_the_machine_repeats_a_run_alone(smoke_sweep, tmp_path):
 def test_trials_run_together_repeat_the_trials_run_apart(smoke_sweep, tmp_path, monkeypatch, capsys):
     """--together plays the four trials' evaluations in one batch per generation, in this process;
     each trial writes the numbers it wrote as a Ray trial of its own."""
-    import lifelong_evo.sweep as sweep
+    import lifelong_evo.commands.sweep as sweep
 
     sweep_dir, argv = smoke_sweep
     together = [*argv[:argv.index("--out")], "--out", str(tmp_path), "--name", "smoke", "--together"]

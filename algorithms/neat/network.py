@@ -1,6 +1,8 @@
-"""neat-python genomes as one batched torch policy, and the paper's NEAT configuration.
+"""neat-python genomes as one batched torch policy.
 
-``compile_genomes`` turns a generation's genomes into padded weight tensors once; the resulting
+``compile_genomes`` turns a generation's genomes into padded weight tensors once, in two steps:
+``layout_genomes`` decides from the genomes' structure which slot computes each node, and
+``fill_tensors`` writes the genes' weights and biases into those slots. The resulting
 ``CompiledPopulation`` maps observations ``(P, E, A, n_inputs)`` to outputs ``(P, E, A, 3)`` for
 every genome at once, with one batched matmul for the input block and one small batched matmul
 per hidden depth (no Python loop over genomes or agents).
@@ -45,27 +47,14 @@ first (see ``CompiledPopulation``).
 """
 from __future__ import annotations
 
-import configparser
+import itertools
 import math
-import os
-import tempfile
 from collections import defaultdict
-from importlib import resources
-from typing import Literal, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Literal, Sequence
 
-import neat
 import torch
 from neat.graphs import feed_forward_layers, required_for_output
-
-from .neat_genetics import (
-    DEFAULT_GENETICS,
-    Neat092Genome,
-    Neat092Reproduction,
-    Neat092SpeciesSet,
-    Neat092Stagnation,
-    check_genetics,
-)
-from .neat_speciation import SpeciesSet
 
 UnconnectedOutputs = Literal["zero", "bias"]
 UNCONNECTED_OUTPUTS_MODES: tuple[str, ...] = ("zero", "bias")
@@ -83,108 +72,6 @@ def neat_sigmoid(x):
     so ``exp`` never overflows. Module-level, so configs and genomes pickle by reference."""
     z = max(-60.0, min(60.0, NEAT_SIGMOID_SLOPE * x))
     return 1.0 / (1.0 + math.exp(-z))
-
-
-# --------------------------------------------------------------------------------------------
-# configuration
-
-
-def neat_config_path() -> str:
-    """Path of the packaged ``neat_config.ini`` (the paper's table)."""
-    return str(resources.files("algorithms").joinpath("neat_config.ini"))
-
-
-def minimum_population(genetics: str = DEFAULT_GENETICS) -> int:
-    """The smallest population NEAT evolves at the size asked, with the paper's configuration
-    (``neat_config.ini``): each species keeps its ``elitism`` best genomes, so 0.92's genetics
-    grows a smaller population to that many; 2.0's gives every species at least
-    max(``elitism``, ``min_species_size``) genomes and stops with an error ("Configuration
-    conflict") where two species do not fit."""
-    parser = configparser.ConfigParser()
-    with open(neat_config_path()) as f:
-        parser.read_file(f)
-    elitism = parser.getint("DefaultReproduction", "elitism")
-    if check_genetics(genetics) == "0.92":
-        return elitism
-    return 2 * max(elitism, parser.getint("DefaultReproduction", "min_species_size"))
-
-
-class Reproduction(neat.DefaultReproduction):
-    """neat-python 2.0.0's ``DefaultReproduction`` with one bug fixed: ``_adjust_spawn_exact``,
-    when the species' spawn counts add up to more than the population, takes one genome off each
-    species above the minimum size in one pass and then gives up. One large species next to one
-    at the minimum is enough for it to raise "Internal error adjusting spawn counts" in the
-    middle of a run (docs/algorithms.md, pitfalls). Here the passes go
-    on until the counts fit; wherever neat-python's own succeeds, the counts are the same."""
-
-    def _adjust_spawn_exact(self, spawn_amounts, pop_size, min_species_size):
-        excess = sum(spawn_amounts) - pop_size
-        if excess <= 0 or len(spawn_amounts) * min_species_size > pop_size:
-            return super()._adjust_spawn_exact(spawn_amounts, pop_size, min_species_size)
-        spawn_amounts = list(spawn_amounts)
-        # neat-python's order: larger species first, ties by species order (a stable sort)
-        order = sorted(range(len(spawn_amounts)), key=lambda i: spawn_amounts[i], reverse=True)
-        while excess > 0:
-            for i in order:
-                if excess > 0 and spawn_amounts[i] > min_species_size:
-                    spawn_amounts[i] -= 1
-                    excess -= 1
-        return spawn_amounts
-
-
-_SECTIONS = ("DefaultGenome", "DefaultReproduction", "DefaultSpeciesSet", "DefaultStagnation")
-"""The sections of ``neat_config.ini``, in the order of ``neat_components``."""
-
-
-def neat_components(genetics: str = DEFAULT_GENETICS) -> tuple[type, type, type, type]:
-    """The genome, reproduction, species-set and stagnation classes of ``genetics`` (see
-    ``algorithms.neat_genetics``): neat-python 0.92's, or 2.0's own with the spawn-count fix and
-    batched speciation distances (``algorithms.neat_speciation``)."""
-    if check_genetics(genetics) == "0.92":
-        return Neat092Genome, Neat092Reproduction, Neat092SpeciesSet, Neat092Stagnation
-    return neat.DefaultGenome, Reproduction, SpeciesSet, neat.DefaultStagnation
-
-
-def build_neat_config(num_inputs: int, pop_size: int = 300,
-                      overrides: Mapping[str, Mapping[str, object]] | None = None,
-                      genetics: str = DEFAULT_GENETICS) -> neat.Config:
-    """A fresh ``neat.Config`` with the paper's values, ``num_inputs`` inputs and ``pop_size``,
-    and the components of ``genetics`` (``neat_components``).
-
-    ``overrides`` maps section name (as in ``neat_config.ini``) to ``{option: value}`` and
-    replaces further values (tests use it for high mutation rates). Build one per optimiser: the
-    config carries mutable counters (the node indexer, and the innovation tracker once
-    reproduction sets it).
-    """
-    if int(num_inputs) < 1:
-        raise ValueError(f"num_inputs must be >= 1, got {num_inputs}")
-    if int(pop_size) < 2:
-        raise ValueError(f"pop_size must be >= 2, got {pop_size}")
-    parser = configparser.ConfigParser()
-    with open(neat_config_path()) as f:
-        parser.read_file(f)
-    parser["NEAT"]["pop_size"] = str(int(pop_size))
-    parser["DefaultGenome"]["num_inputs"] = str(int(num_inputs))
-    for section, values in (overrides or {}).items():
-        for key, value in values.items():
-            if not parser.has_option(section, key):
-                raise KeyError(f"unknown NEAT option [{section}] {key}")
-            parser[section][key] = str(value)
-    components = neat_components(genetics)
-    # neat-python reads each component's options from the section named after its class
-    for section, component in zip(_SECTIONS, components):
-        if section != component.__name__:
-            parser[component.__name__] = dict(parser[section])
-            parser.remove_section(section)
-    fd, path = tempfile.mkstemp(prefix="neat-config-", suffix=".ini")
-    try:
-        with os.fdopen(fd, "w") as f:
-            parser.write(f)
-        config = neat.Config(*components, path)
-    finally:
-        os.unlink(path)
-    config.genome_config.add_activation("neat_sigmoid", neat_sigmoid)
-    return config
 
 
 # --------------------------------------------------------------------------------------------
@@ -212,9 +99,10 @@ def _layers_v092(inputs: Sequence[int], connections: Sequence[tuple[int, int]],
 
 
 def genome_layers(genome, genome_config, unconnected_outputs: UnconnectedOutputs = "zero"
-                  ) -> tuple[list[set[int]], list[tuple[int, int, float]]]:
-    """The layers of computed nodes and the enabled connections ``(src, dst, weight)`` that feed
-    them, for one genome, under ``unconnected_outputs`` (see the module docstring)."""
+                  ) -> tuple[list[set[int]], list[tuple[int, int]]]:
+    """The layers of computed nodes and the enabled connections ``(src, dst)`` that feed them
+    (in the genome's gene order), for one genome, under ``unconnected_outputs`` (see the module
+    docstring)."""
     inputs, outputs = genome_config.input_keys, genome_config.output_keys
     enabled = [cg.key for cg in genome.connections.values() if cg.enabled]
     if unconnected_outputs == "bias":
@@ -225,7 +113,7 @@ def genome_layers(genome, genome_config, unconnected_outputs: UnconnectedOutputs
         raise ValueError(f"unconnected_outputs must be one of {UNCONNECTED_OUTPUTS_MODES}, "
                          f"got {unconnected_outputs!r}")
     computed = set().union(*layers) if layers else set()
-    links = [(a, b, genome.connections[(a, b)].weight) for a, b in enabled if b in computed]
+    links = [(a, b) for a, b in enabled if b in computed]
     return layers, links
 
 
@@ -325,10 +213,163 @@ def _add_weighted(base: torch.Tensor, w: torch.Tensor, z: torch.Tensor, start: i
     return torch.baddbmm(base, w, z[:, :start])
 
 
+# --------------------------------------------------------------------------------------------
+# compiling: the layout, then the tensors
+
+
+@dataclass(frozen=True)
+class GenomeSlots:
+    """Where one genome's computed nodes go among the population's node slots."""
+
+    links: list[tuple[int, int]]
+    """The enabled connections ``(source, target)`` into computed nodes (``genome_layers``)."""
+    slots: dict[int, list[int]]
+    """Each computed node's slots: its hidden slot if other nodes read it, then its output slot
+    if it is an output. Both are computed from the same weights and bias."""
+    hidden_slot: dict[int, int]
+    """The slot a node's targets read: its hidden slot."""
+    zero_outputs: tuple[bool, ...]
+    """Per output, in ``output_keys`` order: left at 0.0 (not computed)."""
+    depth: int
+    """The genome's deepest hidden depth (0: no hidden slots)."""
+
+
+@dataclass(frozen=True)
+class Layout:
+    """The node slots of a population: hidden slots ``0 .. n_hidden - 1``, one contiguous block
+    per depth as wide as the widest genome's, then one slot per output."""
+
+    genomes: list[GenomeSlots]
+    """Each genome's slots, in the population's order."""
+    n_hidden: int
+    n_slots: int
+    """``n_hidden`` plus the outputs."""
+    blocks: list[tuple[int, int]]
+    """``(start, stop)`` of each hidden depth's slots, shallowest first, then of the outputs."""
+    unconnected_outputs: UnconnectedOutputs
+
+
+def _hidden_depths(genome, genome_config, unconnected_outputs: UnconnectedOutputs
+                   ) -> tuple[dict[int, list[int]], set[int], list[tuple[int, int]]]:
+    """One genome's nodes that need a hidden slot, by depth (each depth's nodes in ascending
+    key order), its computed outputs, and the enabled connections into computed nodes. An
+    output needs a hidden slot only when it feeds another node (possible under 0.92's
+    genetics)."""
+    layers, links = genome_layers(genome, genome_config, unconnected_outputs)
+    input_keys, output_keys = set(genome_config.input_keys), set(genome_config.output_keys)
+    incoming: dict[int, list[int]] = defaultdict(list)
+    for a, b in links:
+        incoming[b].append(a)
+    sources = {a for a, _b in links}
+    depth: dict[int, int] = {}
+    by_depth: dict[int, list[int]] = defaultdict(list)
+    outputs = set()
+    for layer in layers:  # topological order: a node's hidden sources already have their depth
+        for node in layer:
+            if node in output_keys:
+                outputs.add(node)
+                if node not in sources:
+                    continue
+            depth[node] = 1 + max((depth[a] for a in incoming[node] if a not in input_keys), default=0)
+            by_depth[depth[node]].append(node)
+    return {d: sorted(nodes) for d, nodes in by_depth.items()}, outputs, links
+
+
+def layout_genomes(genomes: Sequence, genome_config, unconnected_outputs: UnconnectedOutputs) -> Layout:
+    """The slot of every computed node of ``genomes`` (at least one), from their structure alone
+    (which nodes and enabled connections they have, never a weight or bias): hidden depth ``d`` gets as many
+    slots as the genome with the most nodes at that depth has, a genome's nodes take that
+    depth's first slots in ascending key order, and the outputs come last (module docstring,
+    Layout)."""
+    placed = [_hidden_depths(genome, genome_config, unconnected_outputs) for genome in genomes]
+    deepest = max(max(by_depth, default=0) for by_depth, _outputs, _links in placed)
+    width = [max(len(by_depth.get(d, ())) for by_depth, _outputs, _links in placed) for d in range(1, deepest + 1)]
+    offsets = [0, *itertools.accumulate(width)]  # offsets[d - 1]: the first slot of depth d
+    n_hidden = offsets[-1]
+    output_slot = {key: n_hidden + i for i, key in enumerate(genome_config.output_keys)}
+
+    layouts = []
+    for by_depth, outputs, links in placed:
+        hidden_slot = {node: offsets[d - 1] + r for d, nodes in by_depth.items() for r, node in enumerate(nodes)}
+        slots = {node: [slot] for node, slot in hidden_slot.items()}
+        for node in outputs:
+            slots.setdefault(node, []).append(output_slot[node])
+        layouts.append(GenomeSlots(
+            links=links, slots=slots, hidden_slot=hidden_slot,
+            zero_outputs=tuple(key not in outputs for key in genome_config.output_keys),
+            depth=max(by_depth, default=0)))
+    # no depth is empty: a node at depth d reads one at depth d - 1
+    blocks = [(offsets[d], offsets[d + 1]) for d in range(deepest)]
+    blocks.append((n_hidden, n_hidden + len(output_slot)))
+    return Layout(genomes=layouts, n_hidden=n_hidden, n_slots=n_hidden + len(output_slot), blocks=blocks,
+                  unconnected_outputs=unconnected_outputs)
+
+
+def _activation_slope(genome, node: int) -> float:
+    """The slope of node ``node``'s activation; NotImplementedError for a node the batched
+    pass cannot compute."""
+    gene = genome.nodes[node]
+    if gene.aggregation != "sum" or gene.activation not in _ACTIVATION_SLOPES:
+        raise NotImplementedError(
+            f"genome {genome.key} node {node}: the batched pass supports aggregation "
+            f"'sum' with activations {sorted(_ACTIVATION_SLOPES)}, got "
+            f"{gene.aggregation!r}/{gene.activation!r}")
+    return _ACTIVATION_SLOPES[gene.activation]
+
+
+def _dense(shape: tuple[int, ...], entries: dict[tuple[int, ...], float], dtype: torch.dtype) -> torch.Tensor:
+    """A float64 tensor of zeros with ``entries`` (index: value) set, then cast to ``dtype``."""
+    t = torch.zeros(shape, dtype=torch.float64)
+    if entries:
+        t[tuple(torch.tensor(list(entries), dtype=torch.long).T)] = torch.tensor(list(entries.values()),
+                                                                               dtype=torch.float64)
+    return t.to(dtype)
+
+
+def fill_tensors(genomes: Sequence, layout: Layout, genome_config, device: str | torch.device = "cpu",
+                 dtype: torch.dtype = torch.float32) -> CompiledPopulation:
+    """The batched policy of ``genomes`` on ``layout`` (``layout_genomes`` of the same genomes
+    in the same order): each computed node's slots get ``slope * bias`` and, per enabled incoming
+    connection, ``slope * response * weight`` (computed in float64, then cast to ``dtype``); an
+    output left at 0.0 gets bias ``-inf`` and no weights; everything else is 0."""
+    input_index = {k: i for i, k in enumerate(genome_config.input_keys)}
+    P, n_in, N, n_hidden = len(genomes), len(input_index), layout.n_slots, layout.n_hidden
+    bias: dict[tuple[int, int], float] = {}  # (genome, slot)
+    w_in: dict[tuple[int, int, int], float] = {}  # (genome, input, slot)
+    w_hh: dict[tuple[int, int, int], float] = {}  # (genome, slot, the hidden slot it reads)
+    for g, (genome, placed) in enumerate(zip(genomes, layout.genomes)):
+        for i, zero in enumerate(placed.zero_outputs):
+            if zero:  # sigmoid(-inf) is exactly 0.0
+                bias[g, n_hidden + i] = -math.inf
+        slope = {node: _activation_slope(genome, node) for node in placed.slots}
+        for node, slots in placed.slots.items():
+            for s in slots:
+                bias[g, s] = slope[node] * genome.nodes[node].bias
+        for a, b in placed.links:
+            value = slope[b] * genome.nodes[b].response * genome.connections[a, b].weight
+            for s in placed.slots[b]:
+                if a in input_index:
+                    w_in[g, input_index[a], s] = value
+                else:
+                    w_hh[g, s, placed.hidden_slot[a]] = value
+
+    device = torch.device(device)
+    weights_between = _dense((P, N, max(n_hidden, 1)), w_hh, dtype)  # [genome, destination, source]
+    blocks = [(start, stop, None if start == 0 else weights_between[:, start:stop, :start].contiguous().to(device))
+              for start, stop in layout.blocks]
+    return CompiledPopulation(
+        w_in=_dense((P, n_in, N), w_in, dtype).to(device), bias=_dense((P, N), bias, dtype).unsqueeze(2).to(device),
+        blocks=blocks, n_hidden=n_hidden, genome_keys=tuple(genome.key for genome in genomes),
+        unconnected_outputs=layout.unconnected_outputs,
+        depths=torch.tensor([placed.depth for placed in layout.genomes], dtype=torch.long),
+        zero_outputs=torch.tensor([placed.zero_outputs for placed in layout.genomes], dtype=torch.bool))
+
+
 def compile_genomes(genomes: Sequence, config, device: str | torch.device = "cpu", *,
                     unconnected_outputs: UnconnectedOutputs = "zero",
                     dtype: torch.dtype = torch.float32) -> CompiledPopulation:
-    """Compile neat-python genomes (in the given order) into one batched policy.
+    """Compile neat-python genomes (in the given order) into one batched policy: the layout
+    of their nodes (``layout_genomes``), then the tensors (``fill_tensors``).
 
     ``config`` is the ``neat.Config`` (or its ``genome_config``) the genomes were made with.
     """
@@ -339,110 +380,9 @@ def compile_genomes(genomes: Sequence, config, device: str | torch.device = "cpu
     genomes = list(genomes)
     if not genomes:
         raise ValueError("compile_genomes needs at least one genome")
-    input_index = {k: i for i, k in enumerate(genome_config.input_keys)}
-    output_index = {k: i for i, k in enumerate(genome_config.output_keys)}
-    n_in, n_out, P = len(input_index), len(output_index), len(genomes)
-
-    per_genome = []      # (hidden slots' nodes by depth, links, computed outputs)
-    width: list[int] = []  # max hidden slots per depth (depth 1 at index 0)
-    for genome in genomes:
-        layers, links = genome_layers(genome, genome_config, unconnected_outputs)
-        incoming: dict[int, list[int]] = defaultdict(list)
-        for a, b, _w in links:
-            incoming[b].append(a)
-        sources = {a for a, _b, _w in links}
-        depth: dict[int, int] = {}
-        by_depth: dict[int, list[int]] = defaultdict(list)
-        outputs = set()
-        for layer in layers:  # topological order
-            for node in layer:
-                gene = genome.nodes[node]
-                if gene.aggregation != "sum" or gene.activation not in _ACTIVATION_SLOPES:
-                    raise NotImplementedError(
-                        f"genome {genome.key} node {node}: the batched pass supports aggregation "
-                        f"'sum' with activations {sorted(_ACTIVATION_SLOPES)}, got "
-                        f"{gene.aggregation!r}/{gene.activation!r}")
-                if node in output_index:
-                    outputs.add(node)
-                    if node not in sources:
-                        continue
-                d = 1 + max((depth[a] for a in incoming[node] if a not in input_index), default=0)
-                depth[node] = d
-                by_depth[d].append(node)
-        for d, nodes in by_depth.items():
-            nodes.sort()
-            while len(width) < d:
-                width.append(0)
-            width[d - 1] = max(width[d - 1], len(nodes))
-        per_genome.append((by_depth, links, outputs))
-
-    offsets = [0]
-    for w in width:
-        offsets.append(offsets[-1] + w)
-    n_hidden = offsets[-1]
-    N = n_hidden + n_out
-
-    bias_idx: list[tuple[int, int]] = []
-    bias_val: list[float] = []
-    in_idx: list[tuple[int, int, int]] = []
-    in_val: list[float] = []
-    hh_idx: list[tuple[int, int, int]] = []
-    hh_val: list[float] = []
-    zero_outputs = torch.zeros(P, n_out, dtype=torch.bool)
-    depths = torch.zeros(P, dtype=torch.long)
-    for g, (genome, (by_depth, links, outputs)) in enumerate(zip(genomes, per_genome)):
-        hidden_slot: dict[int, int] = {}  # the slot a node's targets read
-        for d, nodes in by_depth.items():
-            for r, node in enumerate(nodes):
-                hidden_slot[node] = offsets[d - 1] + r
-        slots: dict[int, list[int]] = defaultdict(list)  # the slots computing each node
-        for node, s in hidden_slot.items():
-            slots[node].append(s)
-        for node in outputs:
-            slots[node].append(n_hidden + output_index[node])
-        depths[g] = max(by_depth, default=0)
-        for key, i in output_index.items():
-            if key not in outputs:  # left at 0.0: sigmoid(-inf) with no incoming weights
-                zero_outputs[g, i] = True
-                bias_idx.append((g, n_hidden + i))
-                bias_val.append(-math.inf)
-        for node, node_slots in slots.items():
-            gene = genome.nodes[node]
-            for s in node_slots:
-                bias_idx.append((g, s))
-                bias_val.append(_ACTIVATION_SLOPES[gene.activation] * gene.bias)
-        for a, b, weight in links:
-            gene = genome.nodes[b]
-            v = _ACTIVATION_SLOPES[gene.activation] * gene.response * weight
-            for s in slots[b]:
-                if a in input_index:
-                    in_idx.append((g, input_index[a], s))
-                    in_val.append(v)
-                else:
-                    hh_idx.append((g, s, hidden_slot[a]))
-                    hh_val.append(v)
-
-    def dense(shape, idx, val):
-        t = torch.zeros(shape, dtype=torch.float64)
-        if idx:
-            t[tuple(torch.tensor(idx, dtype=torch.long).T)] = torch.tensor(val, dtype=torch.float64)
-        return t.to(dtype)
-
-    device = torch.device(device)
-    bias = dense((P, N), bias_idx, bias_val).unsqueeze(2)
-    w_in = dense((P, n_in, N), in_idx, in_val)
-    w_hh = dense((P, N, max(n_hidden, 1)), hh_idx, hh_val)  # [g, destination, source]
-    blocks: list[tuple[int, int, torch.Tensor | None]] = []
-    bounds = [(offsets[d], offsets[d + 1]) for d in range(len(width)) if width[d] > 0]
-    bounds.append((n_hidden, N))
-    for start, stop in bounds:
-        w = None if start == 0 else w_hh[:, start:stop, :start].contiguous().to(device)
-        blocks.append((start, stop, w))
-    return CompiledPopulation(
-        w_in=w_in.to(device), bias=bias.to(device), blocks=blocks, n_hidden=n_hidden,
-        genome_keys=tuple(g.key for g in genomes), unconnected_outputs=unconnected_outputs,
-        depths=depths, zero_outputs=zero_outputs)
+    layout = layout_genomes(genomes, genome_config, unconnected_outputs)
+    return fill_tensors(genomes, layout, genome_config, device, dtype)
 
 
-__all__ = ["CompiledPopulation", "compile_genomes", "build_neat_config", "neat_components", "neat_config_path",
-           "neat_sigmoid", "genome_layers", "NEAT_SIGMOID_SLOPE", "UNCONNECTED_OUTPUTS_MODES"]
+__all__ = ["CompiledPopulation", "GenomeSlots", "Layout", "compile_genomes", "fill_tensors", "genome_layers",
+           "layout_genomes", "neat_sigmoid", "NEAT_SIGMOID_SLOPE", "UNCONNECTED_OUTPUTS_MODES"]

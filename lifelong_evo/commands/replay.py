@@ -15,13 +15,13 @@ from pathlib import Path
 from algorithms import policy_from_export
 from envs import TASKS
 
-from .config import check_device
-from .episodes import play_episodes
-from .errors import UserError
+from ..config import check_device
+from ..episodes import play_episodes
+from ..errors import UserError
+from ..options import bounded
+from ..rundir import RunDir, read_json
 from .flags import typed
-from .options import bounded
 from .rerun_recorder import APPLICATION_ID, RerunRecorder, make_blueprint
-from .rundir import RunDir, read_json
 
 DEFAULT_SEED = 1_000_000
 

@@ -4,11 +4,11 @@ regulariser.
 One ``tell`` is one generation of neat-python's ``Population.run`` without the reporters:
 best-genome tracking on ``genome.fitness`` (the selection fitness), ``reproduce``,
 complete-extinction handling, ``speciate``, ``generation += 1``. ``genetics`` picks the genome,
-reproduction, species set and stagnation (``neat_network.neat_components``): ``"0.92"`` (the
-default, the paper's) reproduces neat-python 0.92's (``algorithms.neat_genetics``; the population
-size then drifts by a few genomes around ``population_size``), ``"2.0"`` uses neat-python 2.0's
-own (with a fix of its spawn-count adjustment: ``neat_network.Reproduction``). Both run the
-paper's configuration (``neat_config.ini``, built per optimiser by ``build_neat_config``).
+reproduction, species set and stagnation (``genetics.genetics_version``): ``"0.92"`` (the
+default, the paper's) reproduces neat-python 0.92's (the population size then drifts by a few
+genomes around ``population_size``), ``"2.0"`` uses neat-python 2.0's own (with a fix of its
+spawn-count adjustment). Both run the paper's configuration (``config.ini``, built per optimiser
+by ``config.build_neat_config``); the batched network is ``network.compile_genomes``.
 
 Per generation ``tell`` reports the ``diagnostics`` in ``GenerationReport.extra``: the mean and
 standard deviation over the evaluated genomes of the regulariser's distance to the references
@@ -38,18 +38,11 @@ import torch
 from neat.export import export_network_json
 from neat.reporting import ReporterSet
 
-from . import neat_state
-from .base import GenerationReport, Optimizer, OptimizerOptions
-from .neat_genetics import DEFAULT_GENETICS, Genetics
-from .neat_network import (
-    NEAT_SIGMOID_SLOPE,
-    CompiledPopulation,
-    UnconnectedOutputs,
-    build_neat_config,
-    compile_genomes,
-    genome_layers,
-    minimum_population,
-)
+from ..base import GenerationReport, Optimizer, OptimizerOptions
+from . import state as neat_state
+from .config import CONFIG_FILE, build_neat_config, minimum_population
+from .genetics import DEFAULT_GENETICS, Genetics
+from .network import NEAT_SIGMOID_SLOPE, CompiledPopulation, UnconnectedOutputs, compile_genomes, genome_layers
 
 STATE_FORMAT = "lifelong-evo/neat/2"
 
@@ -66,16 +59,16 @@ def _take_counter(obj, attr: str) -> int | None:
 
 @dataclass(frozen=True)
 class NeatOptions(OptimizerOptions):
-    """NEAT's options (the NEAT parameters themselves are the paper's: ``neat_config.ini``)."""
+    """NEAT's options (the NEAT parameters themselves are the paper's: ``config.ini``)."""
 
     references: int = field(default=1, metadata={"min": 1, "max": 1000})
     """The regulariser's penalty is the mean genetic distance to the last this many task references."""
     unconnected_outputs: UnconnectedOutputs = "zero"
     """Nodes without enabled inputs are dead (zero: neat-python 0.92, the paper's) or bias neurons
-    (bias: neat-python 2.0); see ``algorithms.neat_network``."""
+    (bias: neat-python 2.0); see ``algorithms.neat.network``."""
     genetics: Genetics = DEFAULT_GENETICS
     """The genetics the population evolves with: neat-python 0.92's (the paper's) or 2.0's; see
-    ``algorithms.neat_genetics``."""
+    ``algorithms.neat.genetics``."""
 
     def __post_init__(self):
         super().__post_init__()
@@ -97,12 +90,10 @@ class NeatOptimizer(Optimizer):
     @classmethod
     def check_population(cls, population_size: int, options: NeatOptions | None = None) -> None:
         genetics = (options or cls.Options()).genetics
-        smallest = minimum_population(genetics)
+        smallest, why = minimum_population(genetics)
         if population_size < smallest:
-            why = (f"room for two species of {smallest // 2} genomes" if genetics == "2.0"
-                   else f"every species keeps its {smallest} best genomes")
             raise ValueError(f"NEAT with genetics {genetics} needs a population of at least {smallest} ({why}: "
-                             f"elitism in neat_config.ini), got {population_size}")
+                             f"elitism in {CONFIG_FILE}), got {population_size}")
 
     @classmethod
     def memory_needs(cls, population_size: int, obs_dim: int, options: NeatOptions) -> tuple[int, int]:
@@ -283,7 +274,7 @@ class NeatOptimizer(Optimizer):
     # ---------------------------------------------------------------------------- state
 
     def state_dict(self) -> dict[str, Any]:
-        """Plain facts plus every piece of neat-python state as JSON text (``algorithms.neat_state``):
+        """Plain facts plus every piece of neat-python state as JSON text (``algorithms.neat.state``):
         loads with ``torch.load(weights_only=True)`` and continues bit-for-bit."""
         gc = self.config.genome_config
         neat_state.check_components(self.reproduction, self.species)

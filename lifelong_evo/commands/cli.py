@@ -8,24 +8,22 @@ take, a missing file) is one line, ``error: ...``, and exit status 2, before any
 from __future__ import annotations
 
 import argparse
-import json
 import shlex
 import sys
-from dataclasses import asdict, replace
-from pathlib import Path
 
-from algorithms import REGISTRY, UnknownAlgorithmError
+from algorithms import UnknownAlgorithmError
 from envs import ConfigError
 
-from . import compare, loop, memory, options, plots, replay, score, sweep, view
-from .config import RunConfig, merge_layers
-from .errors import Parser, UserError, interrupted_status, terminating_as_interrupt
+from .. import loop, memory
+from ..config import RunConfig, merge_layers
+from ..errors import Parser, UserError, interrupted_status, terminating_as_interrupt
+from ..options import plain
+from ..progress import MODES
+from ..rundir import RunDir
+from . import compare, option_list, plots, replay, score, sweep, view
 from .flags import add_run_options, resolve_run_config, run_layers
-from .options import listing, plain
-from .progress import MODES
 from .report import summary_table
 from .rerun_recorder import RerunRecorder
-from .rundir import RunDir
 
 VERBS = {
     "replay": (replay, "Run a stored controller on fresh episodes and record them."),
@@ -34,7 +32,7 @@ VERBS = {
     "compare": (compare, "Tables of configurations over seeds, each against its baseline, and overlay figures."),
     "score": (score, "Score runs' exported controllers on the held-out episodes (summary.json's held_out block)."),
     "sweep": (sweep, "Grid of runs (algorithms x lambda x seeds x ...) on Ray."),
-    "options": (options, "List the environment's and each optimiser's options, with defaults."),
+    "options": (option_list, "List the environment's and each optimiser's options, with defaults."),
 }
 """Every verb but ``run`` (this module's): its module, with ``add_arguments`` and ``main``, and its help."""
 RUN_HELP = "Run the lifelong experiment (the default verb)."
@@ -58,40 +56,6 @@ def _run_parser(parser: argparse.ArgumentParser) -> None:
                         help="bar (the default on a terminal), lines (a line at every task end and at least "
                              "every 30 s: the default where stderr is a file) or off")
     parser.add_argument("--quiet", dest="progress", action="store_const", const="off", help="same as --progress off")
-
-
-def _same(a, b) -> bool:
-    """Equal as config.json stores them (tuples are lists; 11 and 11.0 are one value)."""
-    return json.loads(json.dumps(a)) == json.loads(json.dumps(b))
-
-
-def resumed_config(args: argparse.Namespace, stored: RunConfig, where: Path) -> RunConfig:
-    """``stored`` with the output settings the command gives (``RunConfig.OUTPUT_SETTINGS``);
-    any other setting the command states (flags, --config, --preset) must equal the stored one,
-    else UserError names each difference with both values."""
-    stated = merge_layers(*run_layers(args))
-    # the stated values parsed to their types, as the run that stored them was
-    typed = replace(stored, **{key: value for key, value in stated.items() if key not in ("env", "algo_options")},
-                    env={**stored.env, **stated.get("env", {})},
-                    algo_options={**stored.algo_options, **stated.get("algo_options", {})}).validate(machine=False)
-    differ = []
-    for key, value in stated.items():
-        if key in RunConfig.OUTPUT_SETTINGS:
-            continue
-        if key in ("env", "algo_options"):
-            # an option the run left at its default was run with that default
-            flag, kept = (("--env", {**stored.env_config().to_dict(), **stored.env}) if key == "env"
-                          else ("--option", {**asdict(REGISTRY[stored.algo].Options()), **stored.algo_options}))
-            for sub in value:
-                given = getattr(typed, key)[sub]
-                if sub not in kept or not _same(kept[sub], given):
-                    differ.append(f"{flag} {sub}={given!r} (stored: {repr(kept[sub]) if sub in kept else 'not set'})")
-        elif not _same(getattr(stored, key), getattr(typed, key)):
-            differ.append(f"--{key.replace('_', '-')} {getattr(typed, key)!r} (stored: {getattr(stored, key)!r})")
-    if differ:
-        raise UserError(f"--resume continues {where} with its stored settings, and the command differs from them: "
-                        f"{'; '.join(differ)}: drop these flags or give the stored values")
-    return replace(stored, **{key: stated[key] for key in RunConfig.OUTPUT_SETTINGS if key in stated})
 
 
 def resume_command(args: argparse.Namespace, name: str) -> str:
@@ -118,7 +82,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.resume:
         # the command that started the run, plus --resume, names the same directory
         run_dir = _run_dir(args)
-        config = resumed_config(args, run_dir.read_config(), run_dir.path)
+        config = run_dir.continuation(merge_layers(*run_layers(args)))
     else:
         config = resolve_run_config(args)
         run_dir = _run_dir(args, config)
@@ -145,7 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="python -m lifelong_evo", description=plain(__doc__),
                     formatter_class=argparse.RawDescriptionHelpFormatter)
     verbs = parser.add_subparsers(dest="verb", metavar="VERB")
-    run = verbs.add_parser("run", help=RUN_HELP, description=RUN_HELP, epilog=listing(),
+    run = verbs.add_parser("run", help=RUN_HELP, description=RUN_HELP, epilog=option_list.listing(),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
     _run_parser(run)
     run.set_defaults(handler=_run)

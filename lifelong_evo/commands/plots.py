@@ -24,6 +24,7 @@ before the first figure is drawn: a bad one is a one-line error with nothing wri
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import re
 from pathlib import Path
@@ -31,10 +32,13 @@ from typing import Any
 
 import numpy as np
 
+from algorithms import REGISTRY
 from envs import task_rgb
 
-from .errors import UserError
-from .rundir import Run, config_differences, describe_config, group_runs, load_runs, retention_columns
+from ..errors import UserError
+from ..rundir import Run, config_differences, describe_config, group_runs, load_runs, retention_columns
+from ..schedule import parse_schedule
+from .tables import sorted_groups
 
 
 def task_color(task: str) -> tuple[float, float, float]:
@@ -285,3 +289,126 @@ def main(args: argparse.Namespace) -> int:
     for path in plot_runs(args.runs, args.out):
         print(path)
     return 0
+
+
+# ------------------------------------------------------------------ comparison overlays
+
+def _overlay(ax, groups: list[list[Run]], configs: list[dict[str, Any]], series) -> bool:
+    """Each configuration's ``series(group)`` (generations, values per seed; None where it has
+    none) as mean over seeds with a min-max band, over the schedule's phases; False if no
+    configuration had any."""
+    drawn = False
+    for k, group in enumerate(groups):
+        found = series(group)
+        if found is not None:
+            generations, values = found
+            band(ax, generations, values, CONFIG_COLORS[k % len(CONFIG_COLORS)], "-", _legend(group, configs),
+                 marker="o" if len(generations) < 40 else None)
+            drawn = True
+    _finish(ax, groups)
+    return drawn
+
+
+RETENTION_STYLES = ("-", "--", ":", "-.")
+"""Line style of each task's retention, in the schedule's order of first appearance."""
+
+
+def _overlay_retention(ax, groups: list[list[Run]], configs: list[dict[str, Any]], level: str) -> bool:
+    """Each configuration's retention of every task while another is current (``level``: pop or
+    top), one colour per configuration and one line style per task, so a red -> green -> red
+    schedule shows red kept through green and green kept through red's return; False if none."""
+    tasks = list(dict.fromkeys(groups[0][0].tasks))
+    drawn = False
+    for k, group in enumerate(groups):
+        found = retention_by_task(group, level)
+        label = _legend(group, configs)
+        for task, style in zip(tasks, itertools.cycle(RETENTION_STYLES)):
+            if task in found:
+                generations, values = found[task]
+                band(ax, generations, values, CONFIG_COLORS[k % len(CONFIG_COLORS)], style, label,
+                     marker="o" if len(generations) < 40 else None)
+                label, drawn = None, True
+    if drawn:
+        for task, style in zip(tasks, itertools.cycle(RETENTION_STYLES)):
+            ax.plot([], [], color="0.3", linestyle=style, label=f"retention of {task}")
+    _finish(ax, groups)
+    return drawn
+
+
+def _legend(group: list[Run], configs: list[dict[str, Any]]) -> str:
+    return f"{describe_config(group[0].config, configs)} (n={len(group)})"
+
+
+def _finish(ax, groups: list[list[Run]]) -> None:
+    draw_drifts(ax, groups[0][0])
+    shade_phases(ax, groups[0][0])
+    ax.set_xlabel("generation")
+    ax.margins(y=0.08)
+    ax.grid(alpha=0.25)
+    # beside the axes: with a few configurations overlaid, any place inside hides some curve
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+
+
+def _column(name: str):
+    """The ``series`` of a metrics.csv column, for ``_overlay``."""
+    return lambda group: stack(group, name) if name in group[0].metrics[0] else None
+
+
+def _diagnostics(groups: list[list[Run]]) -> list[str]:
+    """The optimisers' per-generation diagnostics (``Optimizer.diagnostics``) these runs logged."""
+    names: dict[str, None] = {}
+    for group in groups:
+        optimizer = REGISTRY.get(str(group[0].config.get("algo")))
+        names.update((name, None) for name in getattr(optimizer, "diagnostics", ()) if name in group[0].metrics[0])
+    return list(names)
+
+
+def overlay_figures(paths, out: Path) -> list[Path]:
+    """Per schedule: every configuration's current performance, and the optimisers' diagnostics
+    where they logged any, as mean over seeds with a min-max band."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = [r for r in load_runs(paths) if r.metrics]
+    by_schedule: dict[str, list[list[Run]]] = {}
+    for group in sorted_groups(group_runs(runs)):
+        config = group[0].config
+        phases = parse_schedule(str(config.get("schedule")), int(config.get("generations", 0)))
+        by_schedule.setdefault(repr([(p.name, p.generations) for p in phases]), []).append(group)
+    configs = [g[0].config for groups in by_schedule.values() for g in groups]
+    written = []
+    for index, groups in enumerate(by_schedule.values()):
+        schedule = str(groups[0][0].config.get("schedule", ""))
+        suffix = "" if len(by_schedule) == 1 else f"-{index}-" + re.sub(r"[^A-Za-z0-9]+", "-", schedule).strip("-")
+        fig, ax = plt.subplots(figsize=(13, 5), constrained_layout=True)
+        _overlay(ax, groups, configs, _column("best"))
+        ax.set_title(f"Current performance C (best of the population on the current task), schedule {schedule}\n"
+                     "mean over seeds, band: min-max; coloured strip: the current task", fontsize=10)
+        ax.set_ylabel("fitness (reward per episode)")
+        written.append(save(fig, out / f"comparison-current{suffix}.png"))
+        fig, axes = plt.subplots(2, 1, figsize=(13, 8), sharex=True, constrained_layout=True)
+        drawn = [_overlay_retention(ax, groups, configs, level) for ax, level in zip(axes, ("pop", "top"))]
+        if any(drawn):
+            axes[0].set_xlabel("")
+            axes[0].set_ylabel("R_pop")
+            axes[1].set_ylabel("R_top")
+            axes[0].set_title(f"Retention of each earlier task while another is current (population: best; "
+                              f"top individual), schedule {schedule}\n"
+                              "mean over seeds, band: min-max; line style: the task; coloured strip: the current task",
+                              fontsize=10)
+            written.append(save(fig, out / f"comparison-retention{suffix}.png"))
+        else:
+            plt.close(fig)
+        names = _diagnostics(groups)
+        if names:
+            fig, axes = plt.subplots(len(names), 1, figsize=(13, 3.2 * len(names)), sharex=True,
+                                     constrained_layout=True, squeeze=False)
+            for ax, name in zip(axes[:, 0], names):
+                _overlay(ax, groups, configs, _column(name))
+                ax.set_ylabel(name)
+            axes[0, 0].set_title(f"Optimiser diagnostics per generation, schedule {schedule}\n"
+                                 "mean over seeds, band: min-max; coloured strip: the current task", fontsize=10)
+            written.append(save(fig, out / f"comparison-diagnostics{suffix}.png"))
+    return written

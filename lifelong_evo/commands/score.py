@@ -25,15 +25,14 @@ from typing import Any
 from algorithms import policy_from_export
 from envs import ConfigError
 
-from .config import RunConfig, resolve
-from .errors import UserError
+from ..config import RunConfig, resolve
+from ..errors import UserError
+from ..held_out import score_controllers
+from ..metrics import held_out_summary, parse_controller_key
+from ..options import parse_value, plain
+from ..rundir import RunDir, RunDirError, find_run_dirs, read_json
+from ..schedule import distinct_tasks
 from .flags import parse_assignments
-from .held_out import score_controllers
-from .metrics import held_out_summary, parse_controller_key
-from .options import parse_value, plain
-from .rundir import RunDir, RunDirError, find_run_dirs, read_json
-from .schedule import distinct_tasks
-
 
 HELD_OUT_EPISODES = RunConfig.held_out_episodes
 """Held-out episodes per task for a controller file scored by itself: the run's default."""

@@ -66,7 +66,7 @@ def check_components(reproduction, species_set) -> None:
         extra = sorted(set(vars(component)) - _COMPONENT_ATTRIBUTES[role])
         if extra:
             raise TypeError(f"the {role} {type(component).__qualname__} has state a NEAT checkpoint does not "
-                            f"store: {', '.join(extra)} (see algorithms/neat_state.py)")
+                            f"store: {', '.join(extra)} (see algorithms/neat/state.py)")
 
 
 def dumps(values: Mapping[str, Any], types: Mapping[str, type]) -> str:

@@ -47,10 +47,10 @@ import numpy as np
 
 from envs import COLOR_RGB, color_rgb, task_rgb
 
-from .episodes import Episode
-from .errors import UserError
-from .metrics import GenerationRecord
-from .recording import Recorder
+from ..episodes import Episode
+from ..errors import UserError
+from ..metrics import GenerationRecord
+from ..recording import Recorder
 
 APPLICATION_ID = "lifelong_evo"
 ENV_MODE = "LIFELONG_EVO_RERUN"
@@ -81,7 +81,7 @@ def episode_path(generation: int, phase_task: str, task: str) -> str:
 
 def expected_episode_paths(config) -> list[tuple[str, str]]:
     """(entity path, view name) of the episodes the loop records at task ends, in order."""
-    from .schedule import distinct_tasks
+    from ..schedule import distinct_tasks
 
     phases = config.phases()
     tasks = distinct_tasks(phases)

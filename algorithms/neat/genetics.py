@@ -1,12 +1,18 @@
-"""neat-python 0.92's genetics, built on neat-python 2.0's extension points.
+"""The two genetics a NEAT run can use, and the one place that chooses between them.
 
-The paper ran neat-python 0.92; this project runs neat-python 2.0, whose genetic operators,
-selection and speciation differ from 0.92's. The classes here are the genome, the genes, the
-reproduction, the species set and the stagnation that a ``neat.Config`` takes
-(``build_neat_config(..., genetics="0.92")`` puts them together) and behave as 0.92's do, down to
-the order of every draw from ``random``: from the same seed and the same fitness they evolve the
-populations neat-python 0.92 evolves, gene for gene (``tests/test_neat_genetics.py`` runs 0.92
-itself next to them).
+``genetics_version(genetics)`` answers everything that depends on the choice: the genome,
+reproduction, species-set and stagnation classes a ``neat.Config`` takes (``config.py`` builds it
+with them) and the smallest population each evolves (``GeneticsVersion.minimum_population``).
+Every other module asks it, and none compares the genetics' name itself.
+
+``"2.0"`` is neat-python 2.0's own genetics, with its spawn-count adjustment fixed
+(``Reproduction``) and speciation distances computed in batches (``speciation.SpeciesSet``).
+
+``"0.92"`` (the default) is neat-python 0.92's, which the paper ran: the ``Neat092*`` classes here
+are built on neat-python 2.0's extension points and behave as 0.92's do, down to the order of
+every draw from ``random``: from the same seed and the same fitness they evolve the populations
+neat-python 0.92 evolves, gene for gene (``tests/test_neat_genetics.py`` runs 0.92 itself next
+to them).
 
 Where neat-python 0.92 differs from 2.0, reproduced here:
 
@@ -37,7 +43,7 @@ Speciation
     The genomes to place are a Python ``set`` of their keys, built from an iterator and visited
     (and ``pop``-ed) in the order the interpreter gives it; species are visited in the species
     set's order; among equal distances the first candidate in that order wins. 2.0 visits both
-    in ascending key order. (Both compute their distances in batches: ``neat_speciation``.)
+    in ascending key order. (Both compute their distances in batches: ``speciation``.)
 
 Shared by both versions and inherited unchanged: attribute initialisation and mutation (including
 the draws a zero rate still makes), the order of mutations, node and connection deletion,
@@ -55,6 +61,7 @@ from __future__ import annotations
 import math
 import random
 import sys
+from dataclasses import dataclass
 from typing import Literal, get_args
 
 import neat
@@ -63,7 +70,7 @@ from neat.genome import DefaultGenomeConfig
 from neat.graphs import creates_cycle
 from neat.math_util import mean
 
-from .neat_speciation import SpeciesSet
+from .speciation import SpeciesSet
 
 Genetics = Literal["0.92", "2.0"]
 GENETICS: tuple[str, ...] = get_args(Genetics)
@@ -78,12 +85,80 @@ def check_genetics(value) -> str:
     return value
 
 
+@dataclass(frozen=True)
+class GeneticsVersion:
+    """What a run's genetics decides: its classes and how its reproduction sizes species."""
+
+    genome: type
+    reproduction: type
+    species_set: type
+    stagnation: type
+    exact_population_size: bool
+    """Reproduction makes every generation exactly ``pop_size`` (2.0), giving each species at
+    least max(``elitism``, ``min_species_size``) genomes, or lets the population drift by a few
+    genomes (0.92), each species keeping its ``elitism`` best."""
+
+    @property
+    def components(self) -> tuple[type, type, type, type]:
+        """The genome, reproduction, species-set and stagnation classes, in ``neat.Config``'s order."""
+        return self.genome, self.reproduction, self.species_set, self.stagnation
+
+    def minimum_population(self, elitism: int, min_species_size: int) -> tuple[int, str]:
+        """The smallest population evolved at the size asked, and why, in words. 0.92 grows a
+        smaller population to ``elitism`` genomes; 2.0 stops with an error ("Configuration
+        conflict") where two species do not fit."""
+        if self.exact_population_size:
+            per_species = max(elitism, min_species_size)
+            return 2 * per_species, f"room for two species of {per_species} genomes"
+        return elitism, f"every species keeps its {elitism} best genomes"
+
+
+def genetics_version(genetics: str) -> GeneticsVersion:
+    """The classes and rules of ``genetics`` (one of ``GENETICS``; ValueError for another value)."""
+    if check_genetics(genetics) == "0.92":
+        return GeneticsVersion(Neat092Genome, Neat092Reproduction, Neat092SpeciesSet, Neat092Stagnation,
+                               exact_population_size=False)
+    return GeneticsVersion(neat.DefaultGenome, Reproduction, SpeciesSet, neat.DefaultStagnation,
+                           exact_population_size=True)
+
+
+# --------------------------------------------------------------------------------------------
+# neat-python 2.0's genetics: its own classes, with one fix
+
+
+class Reproduction(neat.DefaultReproduction):
+    """neat-python 2.0.0's ``DefaultReproduction`` with one bug fixed: ``_adjust_spawn_exact``,
+    when the species' spawn counts add up to more than the population, takes one genome off each
+    species above the minimum size in one pass and then gives up. One large species next to one
+    at the minimum is enough for it to raise "Internal error adjusting spawn counts" in the
+    middle of a run (docs/algorithms.md, pitfalls). Here the passes go
+    on until the counts fit; wherever neat-python's own succeeds, the counts are the same."""
+
+    def _adjust_spawn_exact(self, spawn_amounts, pop_size, min_species_size):
+        excess = sum(spawn_amounts) - pop_size
+        if excess <= 0 or len(spawn_amounts) * min_species_size > pop_size:
+            return super()._adjust_spawn_exact(spawn_amounts, pop_size, min_species_size)
+        spawn_amounts = list(spawn_amounts)
+        # neat-python's order: larger species first, ties by species order (a stable sort)
+        order = sorted(range(len(spawn_amounts)), key=lambda i: spawn_amounts[i], reverse=True)
+        while excess > 0:
+            for i in order:
+                if excess > 0 and spawn_amounts[i] > min_species_size:
+                    spawn_amounts[i] -= 1
+                    excess -= 1
+        return spawn_amounts
+
+
+# --------------------------------------------------------------------------------------------
+# neat-python 0.92's genetics on 2.0's classes (module docstring)
+
+
 class Neat092NodeGene(DefaultNodeGene):
     """A node gene without 2.0's ``time_constant``."""
 
     _gene_attributes = [a for a in DefaultNodeGene._gene_attributes if a.name != "time_constant"]
     distance_terms = ("bias", "response")
-    """The attributes whose absolute differences ``distance`` adds, in order (``neat_speciation``)."""
+    """The attributes whose absolute differences ``distance`` adds, in order (``speciation``)."""
 
     def distance(self, other, config):
         d = abs(self.bias - other.bias) + abs(self.response - other.response)
@@ -247,5 +322,6 @@ class Neat092SpeciesSet(SpeciesSet):
         return list(self.species)
 
 
-__all__ = ["Genetics", "GENETICS", "DEFAULT_GENETICS", "check_genetics", "Neat092NodeGene", "Neat092ConnectionGene",
-           "Neat092Genome", "Neat092Stagnation", "Neat092Reproduction", "Neat092SpeciesSet"]
+__all__ = ["Genetics", "GENETICS", "DEFAULT_GENETICS", "GeneticsVersion", "check_genetics", "genetics_version",
+           "Reproduction", "Neat092NodeGene", "Neat092ConnectionGene", "Neat092Genome", "Neat092Stagnation",
+           "Neat092Reproduction", "Neat092SpeciesSet"]

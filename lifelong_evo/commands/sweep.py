@@ -27,7 +27,7 @@ and exits with 130, SIGTERM likewise with 143. Before anything is written, the t
 run at once here must fit in this machine's memory (``lifelong_evo.memory``; on a cluster each
 trial checks its node; ``--no-memory-check`` lifts it).
 
-The comparison adds the model-specific lambda ("m.s. reg", ``lifelong_evo.compare``) where the
+The comparison adds the model-specific lambda ("m.s. reg", ``lifelong_evo.commands.compare``) where the
 grid varies lambda: per configuration without lambda and seed, the lambda whose top individual is
 best at the second task and keeps the first (``model_specific_lambda.md``/``.json``).
 
@@ -42,10 +42,8 @@ HOST:PORT`` (or ``auto``) runs on an existing cluster (``ray start --head`` on o
 ``ray start --address=HOST:6379`` on the others); the lifelong_evo, algorithms and envs packages
 are shipped to the workers, the output folder must be on storage every node sees.
 
-Token authentication (Ray >= 2.52; ``ray start`` turns it on where a token exists): where
-RAY_AUTH_MODE is not set and this machine has a token (RAY_AUTH_TOKEN, RAY_AUTH_TOKEN_PATH or
-~/.ray/auth_token), the sweep connects with it, as Ray itself does for ``--address auto``. A cluster
-that cannot be reached or refuses the token is a one-line error naming the fix, within seconds.
+Everything that touches Ray (starting or joining it, token authentication, running the trials,
+Ray's messages) is ``commands/ray_cluster.py``.
 
 Output: one line per finished trial, and a status line every minute in between. What Ray would
 print among them stays in files: its messages to the driver (task retries, a dying node's state
@@ -55,29 +53,29 @@ dump) in ``ray.log`` in the sweep directory, its process logs in its session fol
 from __future__ import annotations
 
 import argparse
-import contextlib
 import csv
 import io
 import json
-import logging
 import os
-import socket
 import sys
 import time
 from pathlib import Path
 from typing import Any, Sequence
 
-from . import loop, memory
-from .checkpoint import atomic_write_bytes
+from envs import ConfigError
+
+from .. import loop, memory
+from ..checkpoint import atomic_write_bytes
+from ..config import RunConfig
+from ..errors import UserError, interrupted_status, one_line
+from ..options import bounded, plain
+from ..rundir import RunDir, RunDirError, RunDirInUseError, find_run_dirs, write_json
+from . import ray_cluster
 from .compare import write_comparison
-from .config import RunConfig
-from .errors import UserError, interrupted_status, terminating_as_interrupt
 from .flags import add_run_options, typed
 from .grid import Grid, Trial, build_grid, default_sweep_name
-from .options import bounded, plain
 from .report import duration
 from .rerun_recorder import RerunRecorder
-from .rundir import RunDir, RunDirError, RunDirInUseError, find_run_dirs, write_json
 
 STATUSES = ("done", "failed", "pending")
 
@@ -115,11 +113,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 # ------------------------------------------------------------------------------------------- trials
 
-def _one_line(error: BaseException) -> str:
-    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
-    return f"{type(error).__name__}: {lines[0] if lines else ''}".rstrip(": ")
-
-
 def trial_run(config_values: dict[str, Any], path: str, overwrite: bool,
               start_from: RunDir | None = None) -> loop.Lifelong:
     """One trial's loop, as ``python -m lifelong_evo run`` would start it (resuming when ``path``
@@ -127,8 +120,7 @@ def trial_run(config_values: dict[str, Any], path: str, overwrite: bool,
     run_dir = RunDir(path)
     resume = not overwrite and run_dir.config.exists()
     # a resumed trial continues with the settings it was created with, as run --resume does
-    # (trial_state found them equal, perhaps with a default stated in one and left out in the other)
-    config = run_dir.read_config() if resume else RunConfig.from_dict(config_values)
+    config = run_dir.continuation(config_values) if resume else RunConfig.from_dict(config_values)
     recorder = RerunRecorder.for_run(run_dir, config, resume=resume) if config.record else None
     return loop.lifelong(config, run_dir, resume=resume, overwrite=overwrite, recorder=recorder, progress="off",
                          start_from=None if resume else start_from)
@@ -141,9 +133,10 @@ def first_task_source(config: RunConfig, candidates: Sequence[str]) -> RunDir | 
     for candidate in map(RunDir, candidates):
         if candidate.first_task_end.is_file():
             try:
-                if set(candidate.differing_settings(config)) <= {"reg"}:
+                if all(difference.startswith("--reg ") for difference in
+                       candidate.setting_differences(config.to_dict())):
                     return candidate
-            except RunDirError:  # not (yet) a run directory with a readable config.json
+            except (RunDirError, ConfigError):  # not (yet) a run directory with a readable config.json
                 continue
     return None
 
@@ -176,7 +169,7 @@ def run_trial(config_values: dict[str, Any], path: str, overwrite: bool, memory_
         return {"status": "done", "error": "", "wall_time_s": summary["wall_time_s"],
                 "first_task_from": "" if source is None else str(source.path)}
     except Exception as error:  # noqa: BLE001 - the driver records it and goes on
-        return {"status": "failed", "error": _one_line(error), "wall_time_s": time.monotonic() - started}
+        return {"status": "failed", "error": one_line(error), "wall_time_s": time.monotonic() - started}
 
 
 def is_complete(summary: dict[str, Any] | None, config: RunConfig) -> bool:
@@ -190,12 +183,9 @@ def trial_state(path: Path, config: RunConfig) -> tuple[str, str]:
     if not run_dir.config.exists():
         return "new", ""
     try:
-        different = run_dir.differing_settings(config)
-    except RunDirError as error:
+        run_dir.continuation(config.to_dict())
+    except (RunDirError, ConfigError) as error:
         return "failed", str(error)
-    if different:
-        return "failed", (f"{path} was run with other settings ({', '.join(different)} differ): "
-                          "pass --overwrite to restart it, or use another --name")
     return ("done", "") if is_complete(run_dir.read_summary(), config) else ("resume", "")
 
 
@@ -236,124 +226,8 @@ def _cpus(config: RunConfig) -> int:
     return config.threads * config.eval_threads
 
 
-CONNECT_TIMEOUT_S = 5.0
-"""How long the sweep waits for a cluster's address to answer before giving up."""
 STATUS_EVERY_S = 60.0
 """A status line at least this often while trials run."""
-
-
-def _start_ray(args: argparse.Namespace, address: str | None):
-    """Ray for the trials: the cluster at ``address`` (checked by ``_check_cluster``), else a local one."""
-    import ray
-
-    if ray.is_initialized():
-        return ray, False
-    _quiet_token_notice()
-    quiet = {"log_to_driver": False, "logging_level": logging.WARNING}
-    if address:
-        import algorithms
-        import envs
-
-        import lifelong_evo
-
-        modules = [str(Path(m.__file__).parent) for m in (lifelong_evo, algorithms, envs)]
-        try:
-            ray.init(address=address, runtime_env={"py_modules": modules, "excludes": ["__pycache__"]}, **quiet)
-        except (ConnectionError, RuntimeError, ray.exceptions.RayError) as error:
-            raise UserError(f"could not join the Ray cluster at {args.address}: {_one_line(error)}") from None
-    else:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-        # "local": always a new instance, never a cluster that `ray start` left running on this machine
-        ray.init(address="local", num_cpus=cores, include_dashboard=False, **quiet)
-    return ray, True
-
-
-RAY_LOG = "ray.log"
-"""In the sweep directory: the messages Ray's driver would print (task retries, dead nodes' state dumps)."""
-
-
-@contextlib.contextmanager
-def _ray_messages_to(path: Path):
-    """Ray's driver prints the cluster's error messages to stdout from a thread of its own, a whole
-    state dump of every node that dies among them, whatever ``log_to_driver`` says; the sweep
-    appends them to ``path`` instead and reports each trial's outcome itself."""
-    from ray._private import worker
-
-    original = worker.print_to_stdstream
-
-    def to_file(data: dict[str, Any], ignore_prefix: bool) -> None:
-        stamp = time.strftime("%Y-%m-%d %H:%M:%S")
-        with open(path, "a") as log:  # opened per message: they are rare, and come from Ray's thread
-            log.writelines(f"{stamp} ({data.get('pid', 'ray')}) {line}\n" for line in data.get("lines", []))
-
-    worker.print_to_stdstream = to_file  # looked up by name on every message
-    try:
-        yield
-    finally:
-        worker.print_to_stdstream = original
-
-
-@contextlib.contextmanager
-def _native_stderr_silenced():
-    """Ray's C++ client logs its retries to file descriptor 2; the sweep reports the outcome itself."""
-    sys.stderr.flush()
-    saved = os.dup(2)
-    try:
-        with open(os.devnull, "wb") as sink:
-            os.dup2(sink.fileno(), 2)
-        yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-
-
-def _quiet_token_notice() -> None:
-    # Ray's INFO lines and the token notice are for Ray's users; the sweep says what it connected to
-    logging.getLogger("ray._private.authentication.authentication_token_setup").setLevel(logging.ERROR)
-
-
-def _check_cluster(given: str) -> str:
-    """The HOST:PORT of the cluster ``--address`` names, once it answers and accepts this
-    machine's token; otherwise UserError with the fix, within seconds (Ray itself would retry
-    for 20 s and end in a traceback). Turns token authentication on where a token is found."""
-    from ray._private.authentication.authentication_token_setup import maybe_enable_token_auth_if_token_available
-    from ray._private.services import canonicalize_bootstrap_address
-    from ray._raylet import AuthenticationMode, AuthenticationTokenLoader, GcsClient, get_authentication_mode
-    from ray.exceptions import AuthenticationError, RpcError
-
-    _quiet_token_notice()
-    start_hint = "start it with `ray start --head --port=6379` (docs/usage.md, On a cluster), or fix --address"
-    try:
-        address = canonicalize_bootstrap_address(given)
-    except (ConnectionError, ValueError) as error:
-        raise UserError(f"--address {given}: {_one_line(error)}: {start_hint}") from None
-    host, _, port = address.rpartition(":")
-    try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT_S).close()
-    except (OSError, ValueError) as error:
-        reason = getattr(error, "strerror", None) or str(error) or type(error).__name__
-        raise UserError(f"no Ray cluster answers at {given} ({reason}): {start_hint}") from None
-    # an explicit address never turns token authentication on in Ray, while `ray start` does
-    maybe_enable_token_auth_if_token_available(warn_if_disabled=False)
-    copy = ("copy the head node's ~/.ray/auth_token to ~/.ray/auth_token on this machine (or set RAY_AUTH_TOKEN "
-            "to its contents)")
-    has_token = AuthenticationTokenLoader.instance().has_token(ignore_auth_mode=True)
-    token_mode = get_authentication_mode() == AuthenticationMode.TOKEN
-    if token_mode and not has_token:  # Ray's client would exit the process on its first request
-        raise UserError(f"RAY_AUTH_MODE is token and this machine has no Ray token: {copy}")
-    try:
-        with _native_stderr_silenced():
-            GcsClient(address=address)
-    except AuthenticationError:
-        if not has_token:
-            raise UserError(f"the Ray cluster at {given} requires its token and this machine has none: {copy}") from None
-        if not token_mode:
-            raise UserError(f"the Ray cluster at {given} requires its token and RAY_AUTH_MODE is "
-                           f"{os.environ.get('RAY_AUTH_MODE')!r} here: unset RAY_AUTH_MODE or set it to token") from None
-        raise UserError(f"the Ray cluster at {given} rejected this machine's token: {copy}") from None
-    except RpcError as error:
-        raise UserError(f"{given} does not answer as a Ray cluster ({_one_line(error)}): {start_hint}") from None
-    return address
 
 
 def _print(text: str) -> None:
@@ -394,7 +268,7 @@ def main(args: argparse.Namespace) -> int:
         elif trial.name in resuming:
             _print(f"resume  {trial.name} (from its last checkpoint)")
     if args.together:
-        _check_together(args, to_run, sweep_dir)
+        _check_together(args, to_run)
     if args.first_task_from and not args.share_first_task:
         raise UserError("--first-task-from names runs to share first tasks with: add --share-first-task")
     sources: list[str] = []
@@ -417,9 +291,9 @@ def main(args: argparse.Namespace) -> int:
     if args.memory_check:
         _check_memory(args, to_run)
     if to_run and not args.together:
-        _check_token_file()
+        ray_cluster.check_token_file()
     # a cluster that cannot be joined is one error line before anything is written
-    address = _check_cluster(args.address) if args.address and to_run else None
+    address = ray_cluster.check_cluster(args.address) if args.address and to_run else None
     sweep_dir.mkdir(parents=True, exist_ok=True)
     ray_settings = {"address": args.address or "local", "workers": args.workers,
                     "gpus_per_trial": args.gpus_per_trial, "retries": args.retries}
@@ -463,34 +337,16 @@ def _check_memory(args: argparse.Namespace, to_run: list[Trial]) -> None:
     memory.check([t.config for t in largest], what=f"the sweep, with {at_once} trial(s) at once,")
 
 
-def _check_token_file() -> None:
-    """RAY_AUTH_TOKEN_PATH names the file Ray reads its token from, whenever Ray starts or joins a
-    cluster: one that is missing or empty is one line here, not Ray's traceback."""
-    path = os.environ.get("RAY_AUTH_TOKEN_PATH")
-    if not path:
-        return
-    fix = "copy the cluster's token there (docs/usage.md, On a cluster), or unset RAY_AUTH_TOKEN_PATH"
-    try:
-        token = Path(path).read_text().strip()
-    except (OSError, UnicodeDecodeError) as error:
-        raise UserError(f"RAY_AUTH_TOKEN_PATH is {path}, which cannot be read "
-                        f"({getattr(error, 'strerror', None) or error}): {fix}") from None
-    if not token:
-        raise UserError(f"RAY_AUTH_TOKEN_PATH is {path}, which is empty: {fix}")
-
-
-def _check_together(args: argparse.Namespace, to_run: list[Trial], sweep_dir: Path) -> None:
+def _check_together(args: argparse.Namespace, to_run: list[Trial]) -> None:
     """Refuse, before anything is written, what ``--together`` cannot do as asked."""
     if args.address or args.gpus_per_trial or args.workers:
         raise UserError("--together runs every trial in this process, without Ray: drop --address, "
                         "--gpus-per-trial and --workers")
-    for trial in to_run:
-        run_dir = RunDir(sweep_dir / trial.name)
-        config = run_dir.read_config() if not args.overwrite and run_dir.config.exists() else trial.config
-        if config.eval_threads != 1:
+    for trial in to_run:  # a trial to resume has its stored settings (trial_state), eval_threads included
+        if trial.config.eval_threads != 1:
             # one batch is one thread: another count would change the rounding of the trial's numbers
             raise UserError(f"--together plays each generation in one batch, but trial {trial.name} has "
-                            f"--eval-threads {config.eval_threads}: pass --eval-threads 1")
+                            f"--eval-threads {trial.config.eval_threads}: pass --eval-threads 1")
 
 
 def _run_together(grid: Grid, to_run: list[Trial], sweep_dir: Path, overwrite: bool) -> None:
@@ -501,7 +357,7 @@ def _run_together(grid: Grid, to_run: list[Trial], sweep_dir: Path, overwrite: b
     def record(trial: Trial, result: dict[str, Any] | Exception) -> None:
         nonlocal finished
         if isinstance(result, Exception):
-            trial.status, trial.error = "failed", _one_line(result)
+            trial.status, trial.error = "failed", one_line(result)
             trial.wall_time_s = time.monotonic() - started
         else:
             trial.status, trial.error, trial.wall_time_s = "done", "", result["wall_time_s"]
@@ -534,68 +390,33 @@ def _run_together(grid: Grid, to_run: list[Trial], sweep_dir: Path, overwrite: b
 
 def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep_dir: Path,
                 address: str | None, first_task_sources: list[str]) -> None:
-    """Run ``to_run`` on Ray, in that order, recording each result as it comes; on Ctrl-C, cancel
-    the running trials (killing their workers) and raise KeyboardInterrupt."""
-    ray, started = _start_ray(args, address)
-    in_flight: dict[Any, Trial] = {}
-    messages = contextlib.ExitStack()
-    try:
-        messages.enter_context(_ray_messages_to(sweep_dir / RAY_LOG))
-        # ray.init installs a handler of its own that dies on SIGTERM: SIGTERM must take Ctrl-C's way
-        messages.enter_context(terminating_as_interrupt())
-        resources = ray.cluster_resources()
-        if args.gpus_per_trial > resources.get("GPU", 0):
-            raise UserError(f"the Ray cluster has {resources.get('GPU', 0):g} GPU(s), a trial asks for "
-                           f"{args.gpus_per_trial:g}: drop --gpus-per-trial or add GPU nodes")
-        widest = max(_cpus(t.config) for t in to_run)
-        if widest > resources.get("CPU", 0):
-            raise UserError(f"the Ray cluster has {resources.get('CPU', 0):g} CPUs, a trial asks for {widest} "
-                           "(--threads times --eval-threads): lower them")
-        where = f"the Ray cluster at {args.address}" if args.address else "a local Ray"
-        logs = "/tmp/ray/session_latest/logs" + (" on each node" if args.address else "")
-        _print(f"running on {where}: {resources.get('CPU', 0):g} CPUs, {resources.get('GPU', 0):g} GPUs; "
-               f"Ray's messages go to {sweep_dir / RAY_LOG}, its logs to {logs}")
-        remote = ray.remote(run_trial)
-        limit = args.workers or len(to_run)
-        queue = list(to_run)
-        finished = len(grid.trials) - len(to_run)
-        started_at = last_line = time.monotonic()
-        try:
-            while queue or in_flight:
-                while queue and len(in_flight) < limit:
-                    trial = queue.pop(0)
-                    ref = remote.options(num_cpus=_cpus(trial.config), num_gpus=args.gpus_per_trial,
-                                         max_retries=args.retries, name=f"trial:{trial.name}").remote(
-                        trial.config.to_dict(), str(sweep_dir / trial.name), args.overwrite, args.memory_check,
-                        first_task_sources)
-                    in_flight[ref] = trial
-                ready, _ = ray.wait(list(in_flight), num_returns=1, timeout=1.0)
-                for ref in ready:
-                    trial = in_flight.pop(ref)
-                    try:
-                        result = ray.get(ref)
-                    except ray.exceptions.RayError as error:  # worker killed, out of memory, cancelled
-                        result = {"status": "failed", "error": _one_line(error), "wall_time_s": None}
-                    trial.status, trial.error = result["status"], result["error"]
-                    trial.wall_time_s = result["wall_time_s"]
-                    trial.first_task_from = result.get("first_task_from", "")
-                    finished += 1
-                    wall = "" if trial.wall_time_s is None else f" ({duration(trial.wall_time_s)})"
-                    if trial.first_task_from:
-                        wall += f" (first task from {Path(trial.first_task_from).name})"
-                    line = f"[{finished}/{len(grid.trials)}] {trial.status:<6} {trial.name}{wall}"
-                    _print(line + (f": {trial.error}" if trial.error else ""))
-                    write_trials_csv(sweep_dir, grid)
-                    last_line = time.monotonic()
-                if in_flight and time.monotonic() - last_line >= STATUS_EVERY_S:
-                    _print(f"[{finished}/{len(grid.trials)}] {len(in_flight)} running or waiting for CPUs, "
-                           f"{len(queue)} not submitted yet; {duration(time.monotonic() - started_at)} so far")
-                    last_line = time.monotonic()
-        except KeyboardInterrupt:
-            for ref in in_flight:
-                ray.cancel(ref, force=True)
-            raise
-    finally:
-        messages.close()
-        if started:
-            ray.shutdown()
+    """Run ``to_run`` on Ray (``ray_cluster.run_jobs``), in that order, recording each result as it
+    comes; on Ctrl-C or SIGTERM the running trials are cancelled and KeyboardInterrupt raised."""
+    finished = len(grid.trials) - len(to_run)
+    started = time.monotonic()
+
+    def record(index: int, result: dict[str, Any] | None, error: str) -> None:
+        nonlocal finished
+        trial = to_run[index]
+        result = result or {"status": "failed", "error": error, "wall_time_s": None}
+        trial.status, trial.error = result["status"], result["error"]
+        trial.wall_time_s = result["wall_time_s"]
+        trial.first_task_from = result.get("first_task_from", "")
+        finished += 1
+        wall = "" if trial.wall_time_s is None else f" ({duration(trial.wall_time_s)})"
+        if trial.first_task_from:
+            wall += f" (first task from {Path(trial.first_task_from).name})"
+        line = f"[{finished}/{len(grid.trials)}] {trial.status:<6} {trial.name}{wall}"
+        _print(line + (f": {trial.error}" if trial.error else ""))
+        write_trials_csv(sweep_dir, grid)
+
+    def waiting(in_flight: int, queued: int) -> None:
+        _print(f"[{finished}/{len(grid.trials)}] {in_flight} running or waiting for CPUs, {queued} not submitted "
+               f"yet; {duration(time.monotonic() - started)} so far")
+
+    jobs = [ray_cluster.Job(trial.name, _cpus(trial.config),
+                            (trial.config.to_dict(), str(sweep_dir / trial.name), args.overwrite, args.memory_check,
+                             first_task_sources)) for trial in to_run]
+    ray_cluster.run_jobs(jobs, run_trial, address=address, given_address=args.address, workers=args.workers,
+                         gpus_per_job=args.gpus_per_trial, retries=args.retries, log=sweep_dir / ray_cluster.RAY_LOG,
+                         on_result=record, on_wait=waiting, wait_every_s=STATUS_EVERY_S)

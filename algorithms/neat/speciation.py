@@ -28,7 +28,7 @@ by pair, as neat-python does.
 by ``prepare``; a pair never prepared is computed by neat-python itself. ``SpeciesSet`` is
 neat-python 2.0's ``DefaultSpeciesSet.speciate`` on that cache: the same species, members and
 representatives, with the visiting orders as hooks that neat-python 0.92's species set
-(``algorithms.neat_genetics``) overrides. (2.0's ``speciate`` also reports the mean genetic
+(``genetics.Neat092SpeciesSet``) overrides. (2.0's ``speciate`` also reports the mean genetic
 distance to its reporters; the optimiser has none, so that is left out.)
 """
 from __future__ import annotations

@@ -31,8 +31,8 @@ import tempfile
 from pathlib import Path
 from urllib.parse import quote
 
-from .errors import UserError
-from .rundir import RunDir
+from ..errors import UserError
+from ..rundir import RunDir
 
 HOST = "127.0.0.1"
 

@@ -17,10 +17,10 @@ from dataclasses import fields
 
 from envs import ConfigError
 
-from .config import PRESETS, RunConfig, load_toml, resolve
-from .errors import UserError
-from .options import expected, field_docs, flag, parse_value, plain, schema, show, unbounded
-from .schedule import NAMED_SCHEDULES
+from ..config import PRESETS, RunConfig, load_toml, resolve
+from ..errors import UserError
+from ..options import expected, field_docs, flag, parse_value, plain, schema, show, unbounded
+from ..schedule import NAMED_SCHEDULES
 
 NESTED = {"env": "--env", "algo_options": "--option"}
 """The RunConfig tables set key by key, and the repeatable flag of each."""

@@ -1,6 +1,6 @@
 """The grid of a sweep: its axes and fixed values, from the run's own flags (comma-separated
 values) and a sweep file's ``[grid]`` and ``[grid.<algo>]`` tables, expanded into trials, each a
-``RunConfig`` named from its axes (``neat-reg5-seed13``). ``lifelong_evo.sweep`` runs them."""
+``RunConfig`` named from its axes (``neat-reg5-seed13``). ``lifelong_evo.commands.sweep`` runs them."""
 from __future__ import annotations
 
 import argparse
@@ -14,11 +14,11 @@ from typing import Any
 
 from envs import ConfigError
 
-from .config import PRESETS, RunConfig, load_toml, resolve
-from .errors import UserError
+from ..config import PRESETS, RunConfig, load_toml, resolve
+from ..errors import UserError
+from ..options import flag, parse_value, schema
+from ..rundir import check_run_name
 from .flags import NESTED
-from .options import flag, parse_value, schema
-from .rundir import check_run_name
 
 RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in NESTED]
 """Run options with a flag of their own."""

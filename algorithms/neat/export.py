@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import torch
 
-from .neat_network import CompiledPopulation, build_neat_config, compile_genomes
+from .config import build_neat_config
+from .network import CompiledPopulation, compile_genomes
 
 
 def genome_from_export(exported: dict, config):

@@ -1,0 +1,408 @@
+"""``python -m lifelong_evo compare RUN_OR_DIR... [--out DIR] [--baseline KEY=VALUE,...] [--episodes ...]``:
+configurations side by side, and each against its baseline.
+
+Finds every run directory (config.json + summary.json) at or under the given paths (so a sweep
+folder works), groups the runs by configuration (``rundir.group_runs``: runs that differ only in
+the seed, the speed settings and the output settings of ``RunConfig``, or at lambda 0 in the
+regulariser's options, are one) and writes, to ``--out`` (default: the one folder given, else
+``comparison/``):
+
+``comparison.md``    an overview (one line per configuration: ACC/BWT/FWT); per schedule of at
+                     least two tasks the paper's tables, one line per configuration: one table per
+                     deployed controller (the top individual; for an ES also the centre and the
+                     best sample: the first task's C, the second's, the first task's retention R
+                     and forgetting F at the second's end, the third task's C, ACC/BWT/FWT) and one
+                     for the population (its best: C, R_pop, F_pop, ACC_pop/BWT_pop/FWT_pop, the
+                     wall time per run); then each configuration against its baseline (paired
+                     by seed within an algorithm, or Welch across algorithms and where they
+                     share fewer than two seeds: difference, 95%
+                     interval, p, effect size, seeds for 80% power, per outcome of the paper's
+                     tables); then per configuration its tables in full: C per phase, R and F at
+                     each later task end, ACC/BWT/FWT. Values are means over seeds with their
+                     95% t-interval (one seed: the value alone); ``lifelong_evo.commands.statistics`` has
+                     the formulas.
+``comparison.csv``   every figure the tables show and more: per configuration, metric and kind of
+                     episodes its mean, interval and the value of each seed (with the seeds); per
+                     configuration with a baseline, outcome and kind the difference with its
+                     interval, p, effect size, seeds for 80% power, n and the per-seed differences
+``comparison-current[-<schedule>].png``  each configuration's current-performance curve (mean
+                     over seeds, min-max band) on a shared drift schedule
+``comparison-retention[-<schedule>].png``  the same for the retention of every task while another
+                     is current (red through green, green through red's return), the population's
+                     and the top individual's, one line style per task
+``comparison-diagnostics[-<schedule>].png``  the same for each diagnostic the optimisers log
+                     (``Optimizer.diagnostics``: the distance to the regulariser's reference and
+                     its spread; NEAT's fraction of disabled connections), one panel each
+``model_specific_lambda.md`` / ``.json``  where a configuration ran several lambdas (below)
+
+Episodes. Every figure names the episodes it was scored on (held-out, selection-time or
+training: ``commands/tables.py``). ``--episodes held-out`` (the default) shows the controllers'
+held-out figures where the runs have the block and their selection-time ones elsewhere;
+``training`` shows the selection-time ones; ``both`` shows both. The population's figures are
+always training ones. comparison.csv holds every kind whatever ``--episodes`` says.
+
+Baselines. Without ``--baseline`` each configuration with a regulariser is compared with lambda 0
+of the same algorithm and otherwise the same settings, where such runs exist.
+``--baseline KEY=VALUE,...`` names one configuration per schedule by its settings
+(``baseline_settings``: ``algo``, ``reg``, ``schedule``, the other settings of ``RunConfig``, the
+algorithm's options by name, the environment's as ``env.NAME``) and compares every other
+configuration of that schedule with it; naming none, or several of one schedule, is a UserError.
+
+The markdown is printed too. ``compare_table(paths)`` returns ``(rows, markdown)`` for reuse;
+``write_comparison`` writes the tables (``sweep`` uses it for its own directory).
+
+Model-specific lambda ("m.s. reg"): where a configuration ran several lambdas, the lambda per
+seed that ``commands/model_specific.py`` chooses, reported as a configuration of its own. The
+tables and their figures are ``commands/tables.py``, the statistics ``commands/statistics.py``,
+the overlay figures ``commands/plots.py``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..checkpoint import atomic_write_bytes
+from ..errors import UserError
+from ..rundir import Run, config_key, configuration_of, describe_config, group_runs, is_run_dir, load_runs, write_json
+from ..schedule import parse_schedule
+from .model_specific import CRITERION, model_specific_label, model_specific_report, select_model_specific
+from .plots import overlay_figures
+from .statistics import Difference, difference, seed_order
+from .tables import (
+    CONTROLLERS,
+    HELD_OUT,
+    OVERVIEW,
+    TRAINING,
+    TRAINING_KIND,
+    Configuration,
+    Key,
+    csv_head,
+    csv_rows,
+    group_estimates,
+    is_nan,
+    outcomes,
+    overview_row,
+    paper_tables,
+    section,
+    seed_count,
+    shown_controllers,
+    sorted_groups,
+    table,
+    write_csv,
+)
+
+EPISODES_CHOICES = ("held-out", "training", "both")
+"""``--episodes``: which figures of the deployed controllers the tables show."""
+
+
+def baseline_settings(config: dict[str, Any]) -> dict[str, Any]:
+    """The settings ``--baseline`` matches, by name: RunConfig's configuration settings (``algo``,
+    ``reg``, ``schedule``, ``generations``, ...), the algorithm's options by their own names
+    (``genetics``, ``sigma``, ``importance``) and the environment's as ``env.NAME``
+    (``rundir.configuration_of``: as resolved, regulariser options dropped at lambda 0)."""
+    settings: dict[str, Any] = {}
+    for key, value in configuration_of(config).items():
+        if key in ("env", "env_resolved"):
+            settings.update({f"env.{name}": v for name, v in value.items()})
+        elif key in ("algo_options", "algo_options_resolved"):
+            settings.update(value)
+        else:
+            settings[key] = value
+    return settings
+
+
+def parse_baseline(given: list[str] | None) -> dict[str, str] | None:
+    """``--baseline`` (each given once or more, items comma-separated) as KEY -> VALUE text."""
+    if not given:
+        return None
+    items: dict[str, str] = {}
+    for item in (part.strip() for text in given for part in text.split(",")):
+        key, equals, value = item.partition("=")
+        if not equals or not key.strip() or not value.strip():
+            raise UserError(f"--baseline {item!r} is not KEY=VALUE: name the baseline configuration by its settings, "
+                            "e.g. --baseline reg=0 or --baseline algo=neat,reg=0")
+        items[key.strip()] = value.strip()
+    return items
+
+
+def _parse_like(text: str, example: Any, key: str) -> Any:
+    """``text`` as the type of ``example`` (the value some configuration has for ``key``)."""
+    if isinstance(example, bool):
+        if text.lower() not in ("true", "false"):
+            raise UserError(f"--baseline {key}={text}: {key} is true or false")
+        return text.lower() == "true"
+    if isinstance(example, (int, float)):
+        try:
+            return float(text)
+        except ValueError:
+            raise UserError(f"--baseline {key}={text}: {key} is a number, e.g. {key}={example:g}") from None
+    if isinstance(example, str):
+        return text
+    try:
+        return json.loads(text)
+    except ValueError:
+        raise UserError(f"--baseline {key}={text}: {key} is given as JSON, e.g. {key}={json.dumps(example)}") from None
+
+
+def _equal(value: Any, wanted: Any) -> bool:
+    if isinstance(wanted, float) and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value) == wanted
+    return json.dumps(value) == json.dumps(wanted)
+
+
+def choose_baselines(configurations: list[Configuration], items: dict[str, str] | None) -> list[int | None]:
+    """The index of each configuration's baseline in ``configurations`` (None: none, or itself).
+    Without ``items``: lambda 0 of the same algorithm and otherwise the same settings, for a
+    configuration with a regulariser. With ``items`` (``--baseline``): in each schedule, the one
+    configuration whose ``baseline_settings`` has every item; UserError where no configuration
+    matches, or several of one schedule do."""
+    if items is None:
+        def at_lambda_0(config: dict[str, Any]) -> str:
+            return config_key({**config, "reg": 0.0})  # 0.0: as config.json writes lambda 0
+
+        unregularised = {at_lambda_0(c.config): i for i, c in enumerate(configurations) if not float(c.config.get("reg") or 0)}
+        return [unregularised.get(at_lambda_0(c.config)) if float(c.config.get("reg") or 0) else None
+                for c in configurations]
+    settings = [baseline_settings(c.config) for c in configurations]
+    wanted = {}
+    for key, text in items.items():
+        examples = [s[key] for s in settings if key in s]
+        if not examples:
+            known = sorted({k for s in settings for k in s if not k.startswith("env.")})
+            raise UserError(f"--baseline {key}={text}: no configuration compared has a setting {key}; the settings "
+                            f"are {', '.join(known)} and env.NAME for an environment setting")
+        wanted[key] = _parse_like(text, examples[0], key)
+    matching = [i for i, s in enumerate(settings) if all(k in s and _equal(s[k], v) for k, v in wanted.items())]
+    named = ",".join(f"{k}={v}" for k, v in items.items())
+    if not matching:
+        raise UserError(f"--baseline {named} matches none of the {len(configurations)} configurations compared "
+                        f"({'; '.join(c.label for c in configurations)}): name one of them by its settings")
+    chosen: dict[tuple[str, ...], int] = {}
+    for i in matching:
+        phases = tuple(configurations[i].phases)
+        if phases in chosen:
+            both = [configurations[j].label for j in matching if tuple(configurations[j].phases) == phases]
+            raise UserError(f"--baseline {named} matches {len(both)} configurations of schedule "
+                            f"{' -> '.join(phases)} ({'; '.join(both)}): add an item that tells them apart, "
+                            "e.g. algo=... or an option")
+        chosen[phases] = i
+    return [None if chosen.get(tuple(c.phases)) in (None, i) else chosen[tuple(c.phases)]
+            for i, c in enumerate(configurations)]
+
+
+def pairable(config: Configuration, baseline: Configuration) -> bool:
+    """Whether runs of the two configurations are paired by seed: runs of one algorithm with the
+    same seed draw the same episodes and start from the same population, so they share their
+    sample path up to where their settings part (lambda: up to the first drift); runs of two
+    algorithms share at most the episodes, not the population that meets them, and are compared
+    unpaired (Welch)."""
+    return config.config.get("algo") == baseline.config.get("algo")
+
+
+def differences(config: Configuration, baseline: Configuration) -> list[tuple[str, str, Key, Difference]]:
+    """(controller, heading, (kind, metric name), configuration minus baseline) for each outcome both have,
+    of every kind: the paper's figures (``outcomes``) of each controller, then of the population.
+    Paired by seed where the runs are ``pairable`` and share at least two seeds, else Welch
+    (``statistics.difference``)."""
+    same_algo = pairable(config, baseline)
+    found: list[tuple[str, str, Key, Difference]] = []
+    kinds = [*((level, HELD_OUT) for level in CONTROLLERS), *TRAINING_KIND.items(), ("pop", TRAINING)]
+    for level, kind in kinds:
+        for heading, name in outcomes(config.phases, level):
+            mine, theirs = config.found.get((kind, name)), baseline.found.get((kind, name))
+            if mine and theirs and mine[1].values and theirs[1].values:
+                found.append((level, heading, (kind, name),
+                              difference(mine[1].by_seed(), theirs[1].by_seed(), same_algo)))
+    return found
+
+
+def format_difference(d: Difference) -> list[str]:
+    """The cells of a differences-table row: difference [interval], p, effect size, n, seeds for 80% power."""
+    interval = "" if is_nan(d.low) else f" [{d.low:+.2f}, {d.high:+.2f}]"
+    p = "-" if d.p is None else f"{d.p:.3g}" + ("" if d.p_exact or d.test == "Welch" else " (random flips)")
+    effect = "-" if d.effect is None else f"{d.effect:+.2f}"
+    n = str(d.n) if d.test == "paired" else f"{d.n} + {d.n_baseline} (Welch)"
+    power = "-" if d.seeds_for_power is None else ("inf" if math.isinf(d.seeds_for_power) else str(d.seeds_for_power))
+    return [f"{d.mean:+.2f}{interval}", p, effect, n, power]
+
+
+def differences_section(config: Configuration, baseline: Configuration, episodes: str) -> str:
+    """The markdown of ``config`` against ``baseline``: a row per outcome shown (the population's,
+    training; the controllers' kinds per ``shown_controllers`` of both), and the seeds left out."""
+    shown = {("pop", TRAINING), *shown_controllers([config.found, baseline.found], episodes)}
+    rows = [[heading, kind, *format_difference(d)] for level, heading, (kind, _), d in differences(config, baseline)
+            if (level, kind) in shown]
+    seeds = {run.seed for run in config.runs}
+    theirs = {run.seed for run in baseline.runs}
+    paired = pairable(config, baseline) and len(seeds & theirs) >= 2
+    lines = [f"### {config.label} against {baseline.label}", ""]
+    if paired:
+        lines.append("Paired by seed: per outcome the mean of the per-seed differences (this configuration minus "
+                     "the baseline) with its 95% t-interval, the exact two-sided sign-flip permutation p-value (never "
+                     "below 2/2^n with n pairs: 0.0625 with 5), "
+                     "the effect size d_z (mean difference / SD of the differences), n: the seeds both ran that "
+                     "have the figure, and the seeds a two-sided paired t-test (alpha 0.05) needs to detect d_z "
+                     "with 80% power.")
+        alone = sorted(seeds ^ theirs, key=seed_order)
+        if alone:
+            lines.append("Left out of the pairs (run by one of the two only): seed(s) "
+                         + ", ".join(f"{s} ({config.label if s in seeds else baseline.label})" for s in alone) + ".")
+    else:
+        why = ("two algorithms: a seed's runs share no sample path" if not pairable(config, baseline)
+               else "fewer than two seeds in common")
+        lines.append(f"Welch ({why}, so unpaired): per outcome the difference of the means "
+                     "(this configuration minus the baseline) with Welch's 95% interval and p-value, the effect size "
+                     "d = difference / sqrt((SD_a^2 + SD_b^2) / 2), n: the seeds of each, and the seeds per "
+                     "configuration a two-sided two-sample t-test (alpha 0.05) needs to detect d with 80% power.")
+    effect = "d_z" if paired else "d"
+    lines += ["", *table(["outcome", "episodes", "difference [95% interval]", "p", effect, "n seeds",
+                          "seeds for 80% power"], rows), ""]
+    return "\n".join(lines)
+
+
+def difference_rows(config: Configuration, baseline: Configuration) -> list[dict[str, Any]]:
+    """comparison.csv's rows of ``config`` against ``baseline``: every outcome of every kind."""
+    rows = []
+    for _, _, (kind, name), d in differences(config, baseline):
+        rows.append({**csv_head(config.label, config.config), "statistic": f"{d.test} difference", "episodes": kind,
+                     "metric": name, "baseline": baseline.label, "n": d.n, "n_baseline": d.n_baseline,
+                     "mean": d.mean, "ci_low": d.low, "ci_high": d.high, "p": d.p,
+                     "p_method": ("Welch t-test" if d.test == "Welch" else
+                                  "exact sign-flip" if d.p_exact else "random sign-flip"),
+                     "effect_size": d.effect, "seeds_for_80_power": d.seeds_for_power,
+                     "seeds": d.seeds, "values": d.differences})
+    return rows
+
+
+def compare_table(paths, episodes: str = "held-out", baseline: dict[str, str] | None = None
+                  ) -> tuple[list[dict[str, Any]], str]:
+    """Rows (comparison.csv's: see CSV_COLUMNS; ``seeds`` and ``values`` are sequences) and the
+    markdown report, for every run at or under ``paths``; ``episodes`` and ``baseline`` as
+    ``--episodes`` and ``--baseline`` (``parse_baseline``) take them."""
+    return _table(load_runs(paths, with_metrics=False), episodes, baseline)
+
+
+def configurations(runs: list[Run]) -> list[Configuration]:
+    """The runs' configurations, in table order, with their estimates."""
+    # each group by seed (numerically), so nothing below depends on the order the runs came in
+    groups = [sorted(g, key=lambda r: (seed_order(r.seed), str(r.path))) for g in sorted_groups(group_runs(runs))]
+    configs = [g[0].config for g in groups]
+    return [Configuration(describe_config(config, configs), config, group,
+                          [p.name for p in parse_schedule(str(config.get("schedule")), int(config.get("generations", 0)))],
+                          group_estimates(group), seed_count(group))
+            for group, config in zip(groups, configs)]
+
+
+def _table(runs: list[Run], episodes: str = "held-out", baseline: dict[str, str] | None = None
+           ) -> tuple[list[dict[str, Any]], str]:
+    found = configurations(runs)
+    baselines = choose_baselines(found, baseline)
+    rows: list[dict[str, Any]] = []
+    overview, sections, compared = [], [], []
+    for c, b in zip(found, baselines):
+        rows += csv_rows(c.label, c.config, c.found)
+        if b is not None:
+            rows += difference_rows(c, found[b])
+            compared.append(differences_section(c, found[b], episodes))
+        overview.append(overview_row(c.label, c.n, c.found, episodes))
+        seeds = ", ".join(f"{r.seed}{'' if r.finished else ' (unfinished)'}" for r in c.runs)
+        sections.append(section(f"## {c.label}", f"{len(c.runs)} seed(s): {seeds}", c.found, episodes))
+    against = (["## Differences from the baseline", "",
+                "Each configuration against its baseline (" + ("named by --baseline" if baseline else
+                "lambda 0 of the same algorithm and otherwise the same settings") + "), per outcome of the paper's "
+                "tables.", "", *compared] if compared else [])
+    header = [f"# Comparison of {len(runs)} run(s) in {len(found)} configuration(s)", "",
+              "Mean over seeds [95% t-interval]; a single seed shows its value. C: current performance at the end "
+              "of a phase (the population's: its best; C_top: that of the top individual, the best by selection "
+              "fitness; for an ES C_centre and C_best_sample: the search distribution's centre and the best "
+              "sample); R/F: retention/forgetting of an earlier task; ACC/BWT/FWT: average final performance, "
+              "backward and forward transfer. Episodes: held-out (the exported controllers re-scored on the "
+              "fixed held-out episodes), selection-time (the top individual on the training episodes it was "
+              "selected on) or training (the population's best; an ES centre).", "",
+              *table(["configuration", "n seeds", *OVERVIEW], overview), "", *paper_tables(found, episodes), *against]
+    return rows, "\n".join(header + sections)
+
+
+def default_out(paths) -> Path:
+    if len(paths) == 1 and Path(paths[0]).is_dir() and not is_run_dir(Path(paths[0])):
+        return Path(paths[0])
+    return Path("comparison")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("paths", nargs="+", metavar="RUN_OR_DIR", help="run directories or folders holding them")
+    parser.add_argument("--out", default=None, metavar="DIR",
+                        help="where to write comparison.md/.csv and the figure (default: the one folder given, "
+                             "else comparison/)")
+    parser.add_argument("--baseline", action="append", default=None, metavar="KEY=VALUE[,KEY=VALUE...]",
+                        help="the configuration the others are compared with, named by its settings (algo, reg, "
+                             "schedule, an option such as genetics, env.NAME): one per schedule, e.g. "
+                             "algo=neat,reg=0 (default: for each configuration with a regulariser, lambda 0 of the "
+                             "same algorithm and otherwise the same settings)")
+    parser.add_argument("--episodes", choices=EPISODES_CHOICES, default="held-out",
+                        help="the deployed controllers' figures in the tables: held-out (the default: where the "
+                             "runs have summary.json's held_out block, else the selection-time ones), training "
+                             "(the selection-time ones) or both; the population's are training figures always")
+
+
+@dataclass
+class Comparison:
+    """What ``compare`` writes, computed before anything is written."""
+
+    rows: list[dict[str, Any]]
+    markdown: str
+    model_specific_markdown: str | None
+    model_specific_json: list[dict[str, Any]]
+
+
+def comparison(paths, episodes: str = "held-out", baseline: dict[str, str] | None = None) -> Comparison:
+    """``compare_table`` of the runs at or under ``paths`` plus, where a configuration ran several
+    lambdas, the model-specific lambda rows."""
+    runs = load_runs(paths, with_metrics=False)
+    rows, markdown = _table(runs, episodes, baseline)
+    names = [run.path.name for run in runs]
+    tags = names if len(set(names)) == len(names) else [str(run.path) for run in runs]
+    configs = [run.config for run in runs]
+    selections = select_model_specific([(run.config, run.summary, tag) for run, tag in zip(runs, tags)])
+    if not selections:
+        return Comparison(rows, markdown, None, [])
+    ms_rows, ms_markdown = model_specific_report(selections, dict(zip(tags, (r.summary for r in runs))), configs,
+                                                 episodes)
+    ms_json = [{"configuration": model_specific_label(s["config"], configs), "criterion": CRITERION,
+                "choices": s["choices"],
+                "one_lambda_for_all_seeds": None if s["shared"] is None else {
+                    "reg": s["shared"]["reg"],
+                    "mean_per_lambda": [{"reg": r, "mean": m} for r, m in s["shared"]["means"].items()]}}
+               for s in selections]
+    return Comparison(rows + ms_rows, markdown + "\n" + ms_markdown, ms_markdown, ms_json)
+
+
+def write_report(report: Comparison, out: Path) -> str:
+    """Writes ``report`` to ``out``/comparison.md and comparison.csv, the m.s. part also to
+    model_specific_lambda.md and .json. Returns the markdown."""
+    out.mkdir(parents=True, exist_ok=True)
+    if report.model_specific_markdown is not None:
+        atomic_write_bytes(out / "model_specific_lambda.md", (report.model_specific_markdown + "\n").encode())
+        write_json(out / "model_specific_lambda.json", report.model_specific_json)
+    atomic_write_bytes(out / "comparison.md", (report.markdown + "\n").encode())
+    write_csv(report.rows, out / "comparison.csv")
+    return report.markdown
+
+
+def write_comparison(paths, out: Path, episodes: str = "held-out", baseline: dict[str, str] | None = None) -> str:
+    """``comparison`` written to ``out`` (``write_report``); returns the markdown."""
+    return write_report(comparison(paths, episodes, baseline), out)
+
+
+def main(args: argparse.Namespace) -> int:
+    out = Path(args.out) if args.out else default_out(args.paths)
+    report = comparison(args.paths, args.episodes, parse_baseline(args.baseline))  # a bad --baseline writes nothing
+    figures = overlay_figures(args.paths, out)  # reads every metrics.csv before it writes: a bad one writes nothing
+    markdown = write_report(report, out)
+    print(markdown)
+    print(f"wrote {out / 'comparison.md'}, {out / 'comparison.csv'}" + "".join(f", {f}" for f in figures))
+    return 0

@@ -1,0 +1,132 @@
+"""The model-specific lambda ("m.s. reg", the paper's per-seed lambda row): for each configuration
+without lambda and each seed, the lambda maximising ``C_top(phase 1) + R_top(task of phase 0 at
+the end of phase 1)`` (the top individual's current performance plus its retention of the first
+task at the end of the second task: the controller one would deploy, good at both; ties go to the
+smaller lambda), chosen on the selection-time figures (the training episodes) and reported as a
+configuration of its own with the chosen lambda per seed, its tables held-out where the chosen
+runs have the block; beside it the one lambda for all seeds, the highest mean of the same
+criterion over the seeds (``select_model_specific``, ``model_specific_report``). A lambda chosen
+per seed on the seed it is reported on is optimistic: the report says so.
+"""
+from __future__ import annotations
+
+import json
+import math
+import re
+from typing import Any
+
+from ..rundir import configuration_of, describe_config
+from .tables import OVERVIEW, SELECTION_TIME, Estimate, cell, csv_rows, estimates, overview_row, section, table
+
+CRITERION = "C_top(phase 1) + R_top(task of phase 0 at end of phase 1)"
+
+
+def selection_score(summary: dict[str, Any]) -> float | None:
+    """``C_top(phase 1) + R_top(task of phase 0 at the end of phase 1)``; None before phase 1 ended."""
+    current = summary.get("current_top") or []
+    phases = summary.get("phases") or []
+    if len(current) < 2 or len(phases) < 2:
+        return None
+    rows = [r for r in summary.get("forgetting", []) if r["at_end_of"] == 1 and r["task"] == phases[0]]
+    if not rows or current[1] is None or rows[0]["R_top"] is None:
+        return None
+    return float(current[1]) + float(rows[0]["R_top"])
+
+
+def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]) -> list[dict[str, Any]]:
+    """The model-specific lambda: ``runs`` are (config.json dict, summary.json dict, tag) triples;
+    for each configuration without lambda that was run with several lambdas, and each of its seeds,
+    the run whose lambda maximises ``selection_score`` (ties: the smaller lambda). A run without
+    regulariser (lambda 0) is a candidate of every such configuration it differs from only in the
+    regulariser's options (``Optimizer.regularizer_options``: L2 and EWC-style importance both
+    choose between their lambdas and none).
+
+    Returns one dict per such configuration: ``config`` (the config of one of its regularised
+    runs), ``choices``, one per seed in ascending order: ``seed``, ``reg``, ``score``, ``tag``, and
+    ``shared``, the one lambda for every seed: among the lambdas every seed ran, the one whose
+    mean ``selection_score`` over the seeds is highest (ties: the smaller lambda), with
+    ``means`` (lambda -> that mean); ``None`` where no lambda was run by every seed."""
+    def without_lambda(config: dict[str, Any]) -> str:
+        rest = {k: v for k, v in configuration_of(config).items() if k != "reg"}
+        return json.dumps(rest, sort_keys=True, default=str)
+
+    groups: dict[str, dict[str, Any]] = {}
+    base_of: dict[str, str] = {}
+    # regularised runs first, so each lambda-0 run finds every configuration it belongs to
+    for config, summary, tag in sorted(runs, key=lambda run: not float(run[0]["reg"])):
+        base = without_lambda({**config, "reg": 0})
+        if float(config["reg"]):
+            keys = [without_lambda(config)]
+            base_of[keys[0]] = base
+        else:
+            keys = [key for key, its_base in base_of.items() if its_base == base] or [base]
+        for key in keys:
+            group = groups.setdefault(key, {"regs": set(), "by_seed": {}, "config": config})
+            group["regs"].add(float(config["reg"]))
+            score = selection_score(summary)
+            if score is not None and math.isfinite(score):
+                group["by_seed"].setdefault(config["seed"], []).append((score, float(config["reg"]), tag))
+    result = []
+    for group in groups.values():
+        if len(group["regs"]) < 2 or not group["by_seed"]:
+            continue
+        choices = []
+        for seed in sorted(group["by_seed"]):
+            score, reg, tag = max(group["by_seed"][seed], key=lambda c: (c[0], -c[1]))
+            choices.append({"seed": seed, "reg": reg, "score": score, "tag": tag})
+        scores: dict[float, list[float]] = {}
+        for runs_of_seed in group["by_seed"].values():
+            for score, reg, _ in runs_of_seed:
+                scores.setdefault(reg, []).append(score)
+        means = {reg: sum(v) / len(v) for reg, v in sorted(scores.items()) if len(v) == len(group["by_seed"])}
+        shared = None
+        if means:
+            best = max(means, key=lambda reg: (means[reg], -reg))
+            shared = {"reg": best, "means": means}
+        result.append({"config": group["config"], "choices": choices, "shared": shared})
+    return result
+
+
+def model_specific_label(config: dict[str, Any], all_configs: list[dict[str, Any]]) -> str:
+    """``compare``'s label of the configuration with ``reg=m.s.``, e.g. ``neat reg=m.s. red-green-red``."""
+    return re.sub(r"reg=\S+", "reg=m.s.", describe_config(config, all_configs), count=1)
+
+
+def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any, dict[str, Any]],
+                          all_configs: list[dict[str, Any]], episodes: str = "held-out"
+                          ) -> tuple[list[dict[str, Any]], str]:
+    """``compare_table``'s rows and markdown for the m.s. configurations (the chosen lambdas in
+    ``reg``): an overview line per m.s. configuration with the lambda per seed and the criterion,
+    then its tables; means over seeds of the chosen runs with their 95% t-interval. The lambdas
+    are chosen on the selection-time figures; the chosen runs are reported as ``episodes`` says
+    (held-out where they have the block, by default)."""
+    rows: list[dict[str, Any]] = []
+    overview, sections = [], []
+    for selection in selections:
+        config = selection["config"]
+        label = model_specific_label(config, all_configs)
+        choices = selection["choices"]
+        lambdas = ", ".join(f"{c['seed']}: {c['reg']:g}" for c in choices)
+        shared = selection.get("shared")
+        one = "" if shared is None else (f"{shared['reg']:g} (" + ", ".join(
+            f"{reg:g}: {mean:.2f}" for reg, mean in shared["means"].items()) + ")")
+        found = {(SELECTION_TIME, CRITERION): ("selection", Estimate.of([c["score"] for c in choices],
+                                                                        [c["seed"] for c in choices])),
+                 **estimates([(c["seed"], summaries[c["tag"]]) for c in choices])}
+        rows += csv_rows(label, config, found, reg="m.s. " + " ".join(f"{c['reg']:g}" for c in choices))
+        overview.append([label, len(choices), lambdas, one, cell(found, (SELECTION_TIME, CRITERION)),
+                         *overview_row(label, str(len(choices)), found, episodes)[2:]])
+        sections.append(section(f"### {label}", f"lambda per seed: {lambdas}", found, episodes))
+    markdown = "\n".join([
+        "## Model-specific lambda (m.s. reg)", "",
+        f"Per configuration and seed, the lambda of the sweep maximising {CRITERION} (the top individual's "
+        "current performance plus its retention of the first task, at the end of the second task; ties: "
+        "the smaller lambda), from summary.json: chosen on the training episodes (selection-time figures). "
+        "The chosen runs are reported below with held-out figures where they have them (each table names its "
+        "episodes); mean over seeds [95% t-interval]. One lambda for all seeds: among the lambdas every seed "
+        "ran, the one with the highest mean of the criterion over the seeds (ties: the smaller), with each "
+        "lambda's mean.", "",
+        *table(["configuration", "n seeds", "lambda per seed", "one lambda for all seeds (mean per lambda)",
+                f"{CRITERION} (selection-time)", *OVERVIEW], overview), "",
+        *sections]).rstrip("\n")
+    return rows, markdown

@@ -1,0 +1,333 @@
+"""The tables of ``compare``: the figures of each run (``run_metrics``: every number of its
+summary.json, each labelled with the episodes it was scored on), their estimates over seeds
+(``Estimate``: mean and 95% t-interval, ``lifelong_evo.commands.statistics``), and the one writer
+of markdown tables and comparison.csv rows that ``compare`` and the model-specific lambda share.
+
+Episodes. Every figure names the episodes it was scored on: ``held-out`` (summary.json's
+``held_out`` block: the exported controllers re-scored on the fixed held-out episodes, the same
+for every run), ``selection-time`` (the top individual's score on the training episodes it was
+selected on) or ``training`` (the population's best, and an ES centre's, on the training
+episodes; no held-out counterpart).
+"""
+from __future__ import annotations
+
+import csv
+import itertools
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..metrics import HELD_OUT_LEVELS
+from ..rundir import Run
+from .statistics import seed_order, t_interval
+
+HELD_OUT, SELECTION_TIME, TRAINING = "held-out", "selection-time", "training"
+"""The kinds of episodes a figure was scored on (the module docstring says which is which)."""
+
+
+CONTROLLERS = ("top", *(level for level in HELD_OUT_LEVELS.values() if level != "top"))
+"""The deployed controllers in table order: the top individual, an ES centre and best sample."""
+
+
+CONTROLLER_NAMES = {"top": "top individual", "centre": "centre (ES)", "best_sample": "best sample (ES)"}
+
+
+TRAINING_KIND = {"top": SELECTION_TIME, "centre": TRAINING}
+"""The kind of a controller's training-episode figures (none for the best sample: only held-out)."""
+
+
+CSV_COLUMNS = ["configuration", "algo", "reg", "schedule", "statistic", "episodes", "metric", "baseline", "n",
+               "n_baseline", "mean", "ci_low", "ci_high", "p", "p_method", "effect_size", "seeds_for_80_power",
+               "seeds", "values"]
+
+
+def is_nan(value) -> bool:
+    return isinstance(value, float) and math.isnan(value)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One metric over seeds: the seeds and values present (ascending by seed), their mean and
+    its 95% t-interval (``statistics.t_interval``; NaN ends for one seed)."""
+
+    seeds: list[Any]
+    values: list[float]
+    mean: float
+    low: float
+    high: float
+
+    @classmethod
+    def of(cls, values, seeds=None) -> Estimate:
+        """The estimate of ``values`` (None and NaN left out), seed by seed (``seeds``: one per
+        value; default: none named)."""
+        pairs = [(s, float(v)) for s, v in zip(seeds if seeds is not None else itertools.repeat(None), values)
+                 if v is not None and not is_nan(v)]
+        pairs.sort(key=lambda pair: (seed_order(pair[0]), pair[1]))
+        interval = t_interval(v for _, v in pairs)
+        return cls([s for s, _ in pairs], [v for _, v in pairs], interval.mean, interval.low, interval.high)
+
+    def by_seed(self) -> dict[Any, float]:
+        """Seed -> value (the mean of a seed run twice), for pairing with another configuration."""
+        found: dict[Any, list[float]] = {}
+        for seed, value in zip(self.seeds, self.values):
+            found.setdefault(seed, []).append(value)
+        return {seed: sum(v) / len(v) for seed, v in found.items()}
+
+    def __str__(self) -> str:
+        """A table cell: ``-`` for none, the value for one seed, else ``mean [low, high]``."""
+        if not self.values:
+            return "-"
+        if len(self.values) == 1:
+            return f"{self.mean:.2f}"
+        return f"{self.mean:.2f} [{self.low:.2f}, {self.high:.2f}]"
+
+
+Key = tuple[str, str]
+"""A figure: (kind of episodes, metric name), e.g. ``("held-out", "R_top red at end of phase 1")``."""
+
+
+def run_metrics(summary: dict[str, Any]) -> list[tuple[str, Key, float | None]]:
+    """(section, (kind, metric name), value) of one run's summary.json, in table order: the
+    training-episode figures (the population's: training; the top individual's: selection-time;
+    an ES centre's: training), then those of the ``held_out`` block (held-out), then the wall time
+    (kind ``""``)."""
+    out: list[tuple[str, Key, float | None]] = []
+
+    def add(kind: str, part: dict[str, Any], current: dict[str, str], forgetting: dict[str, str],
+            transfer: list[str]) -> None:
+        phases = part.get("phases", [])
+        for name, key in current.items():
+            for i, (task, value) in enumerate(zip(phases, part.get(key) or [])):
+                out.append(("current", (kind[name], f"{name} phase {i} ({task})"), value))
+        for row in part.get("forgetting", []):
+            where = f"{row['task']} at end of phase {row['at_end_of']}"
+            for key, kind_of in forgetting.items():
+                if key in row:
+                    out.append(("forgetting", (kind_of, f"{key} {where}"), row[key]))
+        for name in transfer:
+            if name in part:
+                out.append(("transfer", (kind[name], name), part[name]))
+
+    train = {"C": TRAINING, "C_top": SELECTION_TIME, "C_centre": TRAINING,
+             **{f"{m}_{level}": kind for m in ("ACC", "BWT", "FWT") for level, kind in
+                (("pop", TRAINING), ("top", SELECTION_TIME))}}
+    add(train, summary, {"C": "current", "C_top": "current_top", "C_centre": "centre_current"},
+        {"R_pop": TRAINING, "F_pop": TRAINING, "R_top": SELECTION_TIME, "F_top": SELECTION_TIME,
+         "R_centre": TRAINING, "F_centre": TRAINING},
+        [f"{m}_{level}" for level in ("pop", "top") for m in ("ACC", "BWT", "FWT")])
+    held = summary.get("held_out")
+    if held:
+        levels = [level for level in CONTROLLERS if f"current_{level}" in held]
+        transfer = [f"{m}_{level}" for level in levels for m in ("ACC", "BWT", "FWT")]
+        add({name: HELD_OUT for name in [f"C_{level}" for level in levels] + transfer}, held,
+            {f"C_{level}": f"current_{level}" for level in levels},
+            {f"{m}_{level}": HELD_OUT for level in levels for m in ("R", "F")}, transfer)
+    if summary.get("wall_time_s") is not None:
+        out.append(("cost", ("", "wall time (min)"), summary["wall_time_s"] / 60))
+    return out
+
+
+Estimates = dict[Key, tuple[str, Estimate]]
+"""(kind, metric name) -> (its section in ``run_metrics``, its estimate over seeds)."""
+
+
+def estimates(runs: list[tuple[Any, dict[str, Any]]]) -> Estimates:
+    """Every figure of ``run_metrics`` over ``runs``, (seed, summary.json dict) pairs."""
+    per_metric: dict[Key, tuple[str, list, list]] = {}
+    for seed, summary in runs:
+        for section_name, key, value in run_metrics(summary):
+            _, seeds, values = per_metric.setdefault(key, (section_name, [], []))
+            seeds.append(seed)
+            values.append(value)
+    return {key: (section_name, Estimate.of(values, seeds)) for key, (section_name, seeds, values) in per_metric.items()}
+
+
+def group_estimates(group: list[Run]) -> Estimates:
+    return estimates([(run.seed, run.summary) for run in group])
+
+
+def has_figures(found: Estimates, level: str, kind: str) -> bool:
+    prefix = f"C_{level} phase "
+    return any(k == kind and name.startswith(prefix) and est.values for (k, name), (_, est) in found.items())
+
+
+def shown_controllers(founds: list[Estimates], episodes: str) -> list[tuple[str, str]]:
+    """(controller, kind) whose figures the tables show for configurations whose estimates are
+    ``founds`` (all of them must have the figures), in order: with ``episodes`` ``held-out``
+    the held-out ones where present, else the training ones; ``training``: the training ones;
+    ``both``: both."""
+    held = [(level, HELD_OUT) for level in CONTROLLERS if all(has_figures(f, level, HELD_OUT) for f in founds)]
+    trained = [(level, kind) for level, kind in TRAINING_KIND.items() if all(has_figures(f, level, kind) for f in founds)]
+    if episodes == "training":
+        return trained
+    if episodes == "both":
+        return held + trained
+    return held or trained
+
+
+def table(header: list[str], rows: list[list[Any]]) -> list[str]:
+    """A markdown table's lines."""
+    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header),
+            *("| " + " | ".join(map(str, row)) + " |" for row in rows)]
+
+
+def cell(found: Estimates, key: Key) -> str:
+    return str(found[key][1]) if key in found else "-"
+
+
+def present(found: Estimates, keys: list[Key]) -> bool:
+    return any(key in found and found[key][1].values for key in keys)
+
+
+def section(heading: str, intro: str, found: Estimates, episodes: str) -> str:
+    """One configuration's tables: C per phase, R and F at each later task end, ACC/BWT/FWT, the
+    population's (training) and each shown controller's (``shown_controllers``), every column
+    named with its kind of episodes."""
+    lines = [heading, "", intro, ""]
+    shown = shown_controllers([found], episodes)
+    phases = [name[len("C "):] for (kind, name), (sec, _) in found.items() if sec == "current" and name.startswith("C phase ")]
+    if phases:
+        columns = [("C (training)", (TRAINING, "C"))] + [(f"C_{level} ({kind})", (kind, f"C_{level}")) for level, kind in shown]
+        lines += table(["phase", *(heading for heading, _ in columns)],
+                       [[where, *(cell(found, (kind, f"{m} {where}")) for _, (kind, m) in columns)] for where in phases])
+        lines.append("")
+    wheres = [name[len("R_pop "):] for (kind, name), (sec, _) in found.items()
+              if sec == "forgetting" and name.startswith("R_pop ")]
+    if wheres:
+        columns = [(f"{m} (training)", (TRAINING, m)) for m in ("R_pop", "F_pop")]
+        columns += [(f"{m}_{level} ({kind})", (kind, f"{m}_{level}")) for level, kind in shown for m in ("R", "F")]
+        columns = [(heading, (kind, m)) for heading, (kind, m) in columns
+                   if present(found, [(kind, f"{m} {where}") for where in wheres])]
+        lines += table(["task at end of phase", *(heading for heading, _ in columns)],
+                       [[where, *(cell(found, (kind, f"{m} {where}")) for _, (kind, m) in columns)] for where in wheres])
+        lines.append("")
+    levels = [("pop", TRAINING), *shown]
+    rows = [[f"{level} ({kind})", *(cell(found, (kind, f"{m}_{level}")) for m in ("ACC", "BWT", "FWT"))]
+            for level, kind in levels if present(found, [(kind, f"{m}_{level}") for m in ("ACC", "BWT", "FWT")])]
+    if rows:
+        lines += table(["controller (episodes)", "ACC", "BWT", "FWT"], rows)
+        lines.append("")
+    return "\n".join(lines)
+
+
+def outcomes(phases: list[str], level: str) -> list[tuple[str, str]]:
+    """(heading, metric name) of the paper's figures of one controller (``level``: ``pop`` for
+    the population's best, ``top``, ``centre``, ``best_sample``) on a schedule of ``phases``
+    (task names): the first task's C, the second's, the first task's retention R and forgetting
+    F at the end of the second, the third task's C (in the paper's red -> green -> red, red when
+    it returns), ACC, BWT, FWT; as many of them as the phases allow."""
+    c = "C" if level == "pop" else f"C_{level}"
+    first = phases[0]
+    columns = [(f"{first} {c}", f"{c} phase 0 ({first})")]
+    if len(phases) > 1:
+        where = f"{first} at end of phase 1"
+        columns += [(f"{phases[1]} {c}", f"{c} phase 1 ({phases[1]})"),
+                    (f"{first} R_{level}", f"R_{level} {where}"), (f"{first} F_{level}", f"F_{level} {where}")]
+    if len(phases) > 2:
+        returns = " (returns)" if phases[2] == first else ""
+        columns.append((f"{phases[2]} {c}{returns}", f"{c} phase 2 ({phases[2]})"))
+    return columns + [(f"{m}_{level}", f"{m}_{level}") for m in ("ACC", "BWT", "FWT")]
+
+
+@dataclass
+class Configuration:
+    """One configuration as the tables see it."""
+
+    label: str
+    config: dict[str, Any]
+    runs: list[Run]
+    phases: list[str]
+    found: Estimates
+    n: str
+    """Its seed count for the tables (``seed_count``)."""
+
+
+def paper_tables(configurations: list[Configuration], episodes: str) -> list[str]:
+    """The paper's tables for each schedule with at least two tasks, configurations in the given
+    order: one per deployed controller that some configuration shows (``shown_controllers``), a
+    line per configuration and kind of episodes, and the population's (training episodes)."""
+    lines: list[str] = []
+    schedules = list(dict.fromkeys(tuple(c.phases) for c in configurations if len(c.phases) >= 2))
+    for phases in schedules:
+        mine = [c for c in configurations if tuple(c.phases) == phases]
+        drift = " -> ".join(phases)
+        for level in CONTROLLERS:
+            rows = [[c.label, c.n, kind, *(cell(c.found, (kind, name)) for _, name in outcomes(list(phases), level))]
+                    for c in mine for shown, kind in shown_controllers([c.found], episodes) if shown == level]
+            if rows:
+                lines += [f"The paper's table ({drift}), the {CONTROLLER_NAMES[level]}: C on its own task at the "
+                          f"task's end, the first task's retention R and forgetting F at the end of the second; "
+                          "mean over seeds [95% t-interval]; episodes: held-out or selection-time (the training "
+                          "episodes it was selected on).", "",
+                          *table(["configuration", "n seeds", "episodes",
+                                  *(heading for heading, _ in outcomes(list(phases), level))], rows), ""]
+        columns = outcomes(list(phases), "pop")
+        rows = [[c.label, c.n, *(cell(c.found, (TRAINING, name)) for _, name in columns),
+                 cell(c.found, ("", "wall time (min)"))] for c in mine]
+        lines += [f"The paper's table ({drift}), the population (its best, on the training episodes: no "
+                  "held-out counterpart) and the wall time per run; mean over seeds [95% t-interval].", "",
+                  *table(["configuration", "n seeds", *(heading for heading, _ in columns),
+                          "wall time per run (min)"], rows), ""]
+    return lines
+
+
+def csv_rows(label: str, config: dict[str, Any], found: Estimates, reg: Any = None) -> list[dict[str, Any]]:
+    """comparison.csv's mean rows of one configuration (``reg``: what its reg column says, default its lambda)."""
+    return [{**csv_head(label, config, reg), "statistic": "mean", "episodes": kind, "metric": name,
+             "n": len(estimate.values), "mean": estimate.mean, "ci_low": estimate.low, "ci_high": estimate.high,
+             "seeds": estimate.seeds, "values": estimate.values}
+            for (kind, name), (_, estimate) in found.items()]
+
+
+def csv_head(label: str, config: dict[str, Any], reg: Any = None) -> dict[str, Any]:
+    return {"configuration": label, "algo": config.get("algo"), "reg": config.get("reg") if reg is None else reg,
+            "schedule": config.get("schedule")}
+
+
+OVERVIEW = ("ACC_pop", "BWT_pop", "FWT_pop", "ACC_top", "BWT_top", "FWT_top", "episodes (top)")
+
+
+def overview_row(label: str, n: str, found: Estimates, episodes: str) -> list[str]:
+    """A configuration's overview line: the population's ACC/BWT/FWT (training) and the top
+    individual's, of the first kind ``shown_controllers`` shows."""
+    kinds = [kind for level, kind in shown_controllers([found], episodes) if level == "top"]
+    kind = kinds[0] if kinds else SELECTION_TIME
+    return [label, n, *(cell(found, (TRAINING, f"{m}_pop")) for m in ("ACC", "BWT", "FWT")),
+            *(cell(found, (kind, f"{m}_top")) for m in ("ACC", "BWT", "FWT")), kind]
+
+
+def seed_count(group: list[Run]) -> str:
+    """A configuration's seeds for the tables: ``5``, or ``5 (2 unfinished)`` while some of its
+    runs have not ended every task (their later metrics are missing, so a row's cells can rest
+    on fewer seeds than its count)."""
+    unfinished = sum(not run.finished for run in group)
+    return f"{len(group)} ({unfinished} unfinished)" if unfinished else str(len(group))
+
+
+def sorted_groups(groups: list[list[Run]]) -> list[list[Run]]:
+    return sorted(groups, key=lambda g: (str(g[0].config.get("schedule")), str(g[0].config.get("algo")),
+                                         float(g[0].config.get("reg") or 0), g[0].key))
+
+
+def csv_value(value: Any) -> Any:
+    """A number as comparison.csv writes it: exactly (``repr``), ``inf``, or empty for none/NaN."""
+    if value is None or is_nan(value):
+        return ""
+    if isinstance(value, float):
+        return "inf" if math.isinf(value) else repr(value)
+    return value
+
+
+def write_csv(rows: list[dict[str, Any]], path: Path) -> Path:
+    """comparison.csv: a line per row, ``seeds`` and ``values`` space-separated, empty cells where a
+    row has no such figure."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=CSV_COLUMNS)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({**{k: csv_value(row.get(k)) for k in CSV_COLUMNS},
+                             "seeds": " ".join(str(s) for s in row.get("seeds", ()) if s is not None),
+                             "values": " ".join(repr(float(v)) for v in row.get("values", ()))})
+    return path
