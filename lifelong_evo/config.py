@@ -11,7 +11,8 @@ from typing import Any, ClassVar
 from envs import ConfigError, ForagingConfig
 
 from .options import flag, parse_table, parse_value, schema
-from .schedule import MAX_GENERATIONS, ScheduleError, arena_colors, parse_schedule
+from .schedule import (MAX_GENERATIONS, ScheduleError, arena_colors, distinct_tasks, parse_schedule,
+                       rehearsal_episodes, training_episodes)
 
 
 @dataclass(frozen=True)
@@ -24,7 +25,8 @@ class RunConfig:
     reg: float = field(default=0.0, metadata={"min": 0, "max": 1e9})
     """Regularisation strength lambda (0 = off): genetic distance for NEAT, L2/EWC for the ES."""
     schedule: str = "red-green-red"
-    """red-green-red, four-tasks, or a list like red:200,green:100,red:50."""
+    """red-green-red, four-tasks, or a list like red:200,green:100,red:50; a>b:N blends task a
+    into task b over N generations (red:200,red>green:50,green:150)."""
     generations: int = field(default=200, metadata={"min": 1, "max": MAX_GENERATIONS})
     """Generations per task where the schedule gives no count."""
     population: int = field(default=300, metadata={"min": 1, "max": 1_000_000})
@@ -60,6 +62,22 @@ class RunConfig:
     held_out_episodes: int = field(default=100, metadata={"min": 1, "max": 100_000})
     """Held-out episodes per task on which every exported controller is scored at each task end
     (a fixed test set, the same for every run: docs/metrics.md)."""
+    rehearsal: float = field(default=0.0, metadata={"min": 0, "max": 1})
+    """Rehearsal baseline: this share of each controller's --evals episodes (rounded half up, split
+    evenly, at least one left on the current task) is played on earlier tasks of the schedule, and
+    fitness is the mean over all of them (0: off; docs/metrics.md, Baselines)."""
+    joint: bool = False
+    """Joint (multi-task) upper bound: from generation 0 fitness is the mean over every task of the
+    schedule, --evals split evenly over them."""
+    from_scratch: bool = False
+    """From-scratch baseline: at every task end the optimiser starts again from a fresh random
+    population (seeded from --seed and the phase), so each task is learnt without transfer."""
+    reference_every: int = field(default=0, metadata={"min": 0, "max": MAX_GENERATIONS})
+    """Take the regulariser's reference every this many generations instead of at task ends (0):
+    a rule that needs no task boundary, for schedules with blends (a>b:N)."""
+    gap_window: int = field(default=20, metadata={"min": 0, "max": MAX_GENERATIONS})
+    """Stability gap: score every earlier task in each of the first this many generations after a
+    switch, on episodes of their own (0: off; docs/metrics.md)."""
     env: dict = field(default_factory=dict)
     """Environment overrides (ForagingConfig fields); the arena colours follow the schedule."""
     algo_options: dict = field(default_factory=dict)
@@ -71,7 +89,7 @@ class RunConfig:
                                                  "checkpoint_every")
     """How a run is computed: they change at most the rounding of its numbers, so runs that differ
     only in them (and in the seed) are one configuration; a resumed run keeps them."""
-    OUTPUT_SETTINGS: ClassVar[tuple[str, ...]] = ("record", "episodes_every")
+    OUTPUT_SETTINGS: ClassVar[tuple[str, ...]] = ("record", "episodes_every", "gap_window")
     """What a run records besides its numbers, which they never change: a resumed run may change them."""
 
     @classmethod
@@ -145,13 +163,45 @@ class RunConfig:
         except ScheduleError as error:
             raise ConfigError(str(error)) from None
         env = config.env_config()
-        for phase in phases:
-            env.check_task(phase.task)
+        for task in distinct_tasks(phases):
+            env.check_task(task)
+        config._check_baselines(phases)
         if machine:
             check_device(config.device)
             if config.compile:
                 require_cpp_compiler()
         return config
+
+    def _check_baselines(self, phases) -> None:
+        """The baselines are one each: rehearsal, joint and from scratch exclude each other, and
+        each must change what the run plays."""
+        chosen = [flag for flag, on in (("--rehearsal", self.rehearsal > 0), ("--joint", self.joint),
+                                        ("--from-scratch", self.from_scratch)) if on]
+        if len(chosen) > 1:
+            raise ConfigError(f"{' and '.join(chosen)} are different baselines: choose one of them")
+        if self.rehearsal >= 1:
+            raise ConfigError(f"--rehearsal {self.rehearsal:g} leaves no episode on the current task: give a share "
+                              "below 1 (e.g. 0.3)")
+        if self.rehearsal > 0 and rehearsal_episodes(self.rehearsal, self.evals) == 0:
+            raise ConfigError(f"--rehearsal {self.rehearsal:g} of --evals {self.evals} rounds to no episode: raise "
+                              "--rehearsal or --evals")
+        tasks = len(distinct_tasks(phases))
+        if self.joint and self.evals < tasks:
+            raise ConfigError(f"--joint splits --evals {self.evals} over the schedule's {tasks} tasks: give "
+                              f"--evals {tasks} or more")
+
+    def training_plan(self) -> list[dict[str, Any]]:
+        """Per phase, the episodes per controller each task gets in training (config.json's
+        ``training_episodes``): a blend's at its first and its last generation."""
+        phases = self.phases()
+        plan = []
+        for index, phase in enumerate(phases):
+            ends = (0, phase.generations - 1) if phase.source is not None else (0,)
+            episodes = [{task.name: n for task, n in training_episodes(phases, index, in_task, self.evals,
+                                                                      self.rehearsal, self.joint)} for in_task in ends]
+            plan.append({"task": phase.name, **({"blend_from": phase.source.name, "first": episodes[0],
+                                                  "last": episodes[1]} if phase.source else {"episodes": episodes[0]})})
+        return plan
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

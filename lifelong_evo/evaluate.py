@@ -30,11 +30,32 @@ def _env(config: ForagingConfig, batch_size: int, device: str, dtype: torch.dtyp
     return env
 
 
-def sample_episodes(config: ForagingConfig, tasks: Sequence[Task], n_envs: int, generator: torch.Generator,
-                    device: str | torch.device = "cpu", dtype: torch.dtype = torch.float32) -> ForagingState:
-    """``n_envs`` fresh initial states per task, task-major: ``(len(tasks) * n_envs)`` environments."""
-    sampler = ForagingEnv(config, batch_size=n_envs, device=device, dtype=dtype)
-    return ForagingState.cat([sampler.sample_state(task, generator) for task in tasks])
+def sample_episodes(config: ForagingConfig, tasks: Sequence[Task], n_envs: int | Sequence[int],
+                    generator: torch.Generator, device: str | torch.device = "cpu",
+                    dtype: torch.dtype = torch.float32) -> ForagingState:
+    """``n_envs`` fresh initial states per task (or ``n_envs[i]`` for task i), task-major."""
+    samplers: dict[int, ForagingEnv] = {}
+    states = []
+    for task, n in zip(tasks, episode_counts(tasks, n_envs)):
+        sampler = samplers.setdefault(n, ForagingEnv(config, batch_size=n, device=device, dtype=dtype))
+        states.append(sampler.sample_state(task, generator))
+    return ForagingState.cat(states)
+
+
+def episode_counts(tasks: Sequence[Task], n_envs: int | Sequence[int]) -> list[int]:
+    """Episodes per task: ``n_envs`` for each, or one count per task."""
+    counts = [n_envs] * len(tasks) if isinstance(n_envs, int) else list(n_envs)
+    if len(counts) != len(tasks):
+        raise ValueError(f"{len(counts)} episode counts for {len(tasks)} tasks")
+    return counts
+
+
+def task_means(totals: torch.Tensor, counts: Sequence[int]) -> torch.Tensor:
+    """``(tasks, population)`` mean rewards from the summed rewards ``(population, episodes)``,
+    task-major with ``counts[i]`` episodes of task i."""
+    if len(set(counts)) == 1:  # one reshape: the same reduction, and so the same bits, as ever
+        return totals.view(totals.shape[0], len(counts), counts[0]).mean(dim=-1).T
+    return torch.stack([part.mean(dim=-1) for part in totals.split(list(counts), dim=1)])
 
 
 @contextmanager
@@ -121,16 +142,16 @@ def _play(policy: BatchedPolicy, config: ForagingConfig, episodes: ForagingState
     return rollout(policy, env, observations).view(population, n_episodes)
 
 
-def evaluate(policy: BatchedPolicy, config: ForagingConfig, tasks: Sequence[Task], n_envs: int,
+def evaluate(policy: BatchedPolicy, config: ForagingConfig, tasks: Sequence[Task], n_envs: int | Sequence[int],
              generator: torch.Generator, device: str | torch.device = "cpu",
              dtype: torch.dtype = torch.float32, compiled: bool = False, eval_threads: int = 1,
              cuda_graphs: bool = False) -> torch.Tensor:
     """Fitness ``(len(tasks), population)``: the mean episode reward of every controller over
-    ``n_envs`` fresh environments per task, drawn from ``generator`` and shared by all controllers
-    (``eval_threads``, ``cuda_graphs``: see ``run_episodes``)."""
+    ``n_envs`` fresh environments per task (or ``n_envs[i]`` for task i), drawn from ``generator``
+    and shared by all controllers (``eval_threads``, ``cuda_graphs``: see ``run_episodes``)."""
     episodes = sample_episodes(config, tasks, n_envs, generator, device, dtype)
     totals = run_episodes(policy, config, episodes, device, dtype, compiled, eval_threads, cuda_graphs)
-    return totals.view(policy.population_size, len(tasks), n_envs).mean(dim=-1).T
+    return task_means(totals, episode_counts(tasks, n_envs))
 
 
 @dataclass
@@ -140,7 +161,8 @@ class Evaluation:
     policy: BatchedPolicy
     config: ForagingConfig
     tasks: Sequence[Task]
-    n_envs: int
+    n_envs: int | Sequence[int]
+    """Episodes per task: one count for all, or one per task."""
     generator: torch.Generator
     device: str = "cpu"
     compiled: bool = False
@@ -180,7 +202,7 @@ def _play_together(evaluations: Sequence[Evaluation]) -> list[torch.Tensor]:
     for evaluation in evaluations:
         episodes = sample_episodes(evaluation.config, evaluation.tasks, evaluation.n_envs, evaluation.generator,
                                    evaluation.device)
-        n_episodes = len(evaluation.tasks) * evaluation.n_envs
+        n_episodes = sum(episode_counts(evaluation.tasks, evaluation.n_envs))
         states.append(episodes.index(torch.arange(n_episodes).repeat(evaluation.policy.population_size)))
         parts.append((evaluation.policy, n_episodes))
     together = _Together(parts)
@@ -189,9 +211,8 @@ def _play_together(evaluations: Sequence[Evaluation]) -> list[torch.Tensor]:
     fitness, start = [], 0
     for evaluation, (policy, n_episodes) in zip(evaluations, parts):
         size = policy.population_size * n_episodes
-        per_controller = totals[start:start + size].view(policy.population_size, len(evaluation.tasks),
-                                                         evaluation.n_envs)
-        fitness.append(per_controller.mean(dim=-1).T)
+        per_controller = totals[start:start + size].view(policy.population_size, n_episodes)
+        fitness.append(task_means(per_controller, episode_counts(evaluation.tasks, evaluation.n_envs)))
         start += size
     return fitness
 

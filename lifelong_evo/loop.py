@@ -2,6 +2,13 @@
 current task (and on earlier tasks every few generations, in the same batched call), regularise,
 tell, record; a checkpoint at intervals and at every task end.
 
+The baselines of docs/metrics.md change only what a generation trains on
+(``schedule.training_episodes``: rehearsal, joint, blends), when the regulariser takes its
+reference (``reference_every``) and whether the optimiser starts afresh at a task end
+(``from_scratch``). The stability gap's scores of earlier tasks, in the first ``gap_window``
+generations after a switch, are played on episodes of their own, so that they never change the
+run's training numbers.
+
 A run continues bit for bit from a checkpoint (``--resume``): everything random comes from the
 optimiser's state and the run's one torch generator, both checkpointed; recorded episodes draw
 from seeds of their own.
@@ -13,6 +20,7 @@ optimiser, random streams, run directory and checkpoints, and its numbers the sa
 """
 from __future__ import annotations
 
+import hashlib
 import math
 import shutil
 import sys
@@ -27,13 +35,14 @@ from algorithms import make_optimizer, policy_from_export
 from . import checkpoint
 from .config import RunConfig, check_device
 from .episodes import play_episodes
-from .evaluate import Evaluation, evaluate_together, update_threads
+from .evaluate import Evaluation, evaluate, evaluate_together, update_threads
 from .held_out import score_controllers
-from .metrics import INITIAL, FitnessStats, GenerationRecord, Retention, controller_key, retention, summarise
+from .metrics import (INITIAL, FitnessStats, GenerationRecord, Retention, controller_key, retention, stability_gap,
+                      summarise)
 from .progress import Progress
 from .recording import Recorder
-from .rundir import GenerationLog, MetricsLayout, ResumeError, RunDir
-from .schedule import Phase, distinct_tasks
+from .rundir import GenerationLog, MetricsLayout, ResumeError, RunDir, read_metrics
+from .schedule import Phase, distinct_tasks, training_episodes
 
 
 @dataclass
@@ -133,9 +142,7 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
     phase_names = [p.name for p in phases]
     tasks = distinct_tasks(phases)
     env_config = config.env_config()
-    optimizer = make_optimizer(config.algo, obs_dim=env_config.obs_dim, population_size=config.population,
-                               seed=config.seed, reg=config.reg, device=config.device,
-                               **config.algo_options)
+    optimizer = _make_optimizer(config, env_config, config.seed)
     centre = optimizer.centre_index  # ES: the search distribution's centre
     generator = torch.Generator().manual_seed(config.seed)
     # one writer per run directory: its lock is taken before anything is written and held to the finally below
@@ -155,6 +162,12 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
     recorder = recorder or Recorder()
     display = Progress(sum(p.generations for p in phases), state.generation, mode=progress)
     started = time.monotonic() - state.wall_time_s
+
+    def summary_now() -> dict[str, Any]:
+        gap = stability_gap(read_metrics(run_dir.metrics), phase_names, config.gap_window) if config.gap_window else None
+        return summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s, centre is not None,
+                         state.held_out, config.held_out_episodes, state.first_task_from, stability_gap=gap)
+
     try:
         for generation, phase_index, in_task in _generations(phases, start=state.generation):
             phase = phases[phase_index]
@@ -162,24 +175,42 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
             last = in_task == phase.generations - 1
             if in_task == 0 and phase_index > 0:
                 recorder.log_drift(generation, phase_names[phase_index - 1], phase.name)
+            training = training_episodes(phases, phase_index, in_task, config.evals, config.rehearsal, config.joint)
+            mixed = len(training) > 1 or training[0][0].name != phase.name
+            # the joint baseline reports every task's score in every generation, the others earlier tasks'
+            reported = [t for t in tasks if t.name != phase.name] if config.joint else earlier
             if generation == 0 or last:
-                others = [t for t in tasks if t.name != phase.name]  # every task: R matrix, FWT baseline
-            elif generation % config.retention_every == 0:
-                others = earlier
+                # every task: R matrix, FWT baseline; where training mixes tasks, the current one's own score too
+                others = [t for t in tasks if t.name != phase.name or mixed]
+            elif config.joint or generation % config.retention_every == 0:
+                others = reported
             else:
                 others = []
 
             with update_threads(config.threads, config.eval_threads):
                 policy = optimizer.ask()
-            fitness = yield Evaluation(policy, env_config, [phase.task, *others], config.evals, generator,
+            fitness = yield Evaluation(policy, env_config, [task for task, _ in training] + others,
+                                       [n for _, n in training] + [config.evals] * len(others), generator,
                                        config.device, compiled=config.compile, eval_threads=config.eval_threads,
                                        cuda_graphs=config.cuda_graphs)
-            raw = fitness[0]
+            raw = _mean_over_episodes(fitness[:len(training)], [n for _, n in training])
             regularised = optimizer.regularise(raw)
             # the top individual is the one selection favours, as in the paper's code: with a
             # regulariser on, the best by regularised fitness, which is what one would deploy
-            scores = {task.name: retention(fitness[1 + i], regularised, centre) for i, task in enumerate(others)}
-            scores[phase.name] = retention(raw, regularised, centre)
+            scores = {task.name: retention(fitness[len(training) + i], regularised, centre)
+                      for i, task in enumerate(others)}
+            own = [i for i, (task, _) in enumerate(training) if task.name == phase.name]
+            if mixed and own and phase.name not in scores:  # the current task's share of the training episodes
+                scores[phase.name] = retention(fitness[own[0]], regularised, centre)
+            # where training mixes tasks, the current task's own score gets its retention cells
+            current_cells = [phase.task] if mixed and phase.name in scores else []
+            scores.setdefault(phase.name, retention(raw, regularised, centre))
+            window = [t for t in earlier if t.name not in scores] if phase_index and in_task < config.gap_window else []
+            if window:  # the stability gap's scores, on episodes of their own
+                kept = evaluate(policy, env_config, window, config.evals, _gap_episodes(config.seed, generation),
+                                config.device, compiled=config.compile, eval_threads=config.eval_threads,
+                                cuda_graphs=config.cuda_graphs)
+                scores.update({task.name: retention(kept[i], regularised, centre) for i, task in enumerate(window)})
             top = int(regularised.argmax())
             periodic = bool(config.episodes_every) and generation % config.episodes_every == 0
             # exported before tell, which replaces the asked population that export reads from; with
@@ -192,7 +223,7 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
             record = GenerationRecord(
                 task=phase.name, task_index=phase_index, generation=generation, generation_in_task=in_task,
                 fitness=FitnessStats.of(raw), regularised=FitnessStats.of(regularised), top=raw[top].item(),
-                retention={t.name: scores[t.name] for t in earlier if t.name in scores},
+                retention={t.name: scores[t.name] for t in [*reported, *current_cells] if t.name in scores},
                 species_sizes=report.species_sizes, centre=None if centre is None else raw[centre].item(),
                 diagnostics=report.extra)
             log.write(record)
@@ -212,6 +243,11 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
                 state.held_out.update(score_controllers(
                     {controller_key(phase_index, phase.name, kind): controller for kind, controller in exports.items()},
                     env_config, tasks, config.held_out_episodes))
+            # the regulariser's reference: at each task end, or boundary-free every reference_every generations
+            if (generation + 1) % config.reference_every == 0 if config.reference_every else last:
+                optimizer.end_task()
+            if last and config.from_scratch and phase_index + 1 < len(phases):
+                optimizer = _make_optimizer(config, env_config, scratch_seed(config.seed, phase_index + 1))
 
             state.generation = generation + 1
             state.wall_time_s = time.monotonic() - started
@@ -223,12 +259,8 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
                 run_dir.save_checkpoint(state.generation, payload)
                 if last and phase_index == 0:  # kept for runs that share this first task (start_from)
                     run_dir.save_first_task_end(payload)
-                run_dir.write_summary(summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s,
-                                                centre is not None, state.held_out, config.held_out_episodes,
-                                                state.first_task_from))
-        summary = summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s, centre is not None,
-                            state.held_out, config.held_out_episodes,
-                                                state.first_task_from)
+                run_dir.write_summary(summary_now())
+        summary = summary_now()
         run_dir.write_summary(summary)
     finally:
         log.close()
@@ -236,6 +268,36 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
         display.close()
         lock.release()
     return summary
+
+
+def _make_optimizer(config: RunConfig, env_config, seed: int):
+    return make_optimizer(config.algo, obs_dim=env_config.obs_dim, population_size=config.population, seed=seed,
+                          reg=config.reg, device=config.device, **config.algo_options)
+
+
+def _seed_from(*parts: object, bits: int) -> int:
+    """A seed of ``bits`` bits derived from ``parts`` (a hash: streams of different parts do not overlap)."""
+    return int.from_bytes(hashlib.sha256(" ".join(map(str, parts)).encode()).digest()[:8], "big") >> (64 - bits)
+
+
+def scratch_seed(seed: int, phase_index: int) -> int:
+    """The from-scratch baseline's seed for the fresh population of phase ``phase_index``: from the
+    run's seed and the phase alone, so that it does not depend on what came before."""
+    return _seed_from("from-scratch", seed, phase_index, bits=32)
+
+
+def _gap_episodes(seed: int, generation: int) -> torch.Generator:
+    """The stability gap's episodes of one generation: a stream of their own, so that scoring them
+    never shifts the run's (held-out seeds start at 2**63; these lie below)."""
+    return torch.Generator().manual_seed(_seed_from("stability-gap", seed, generation, bits=63))
+
+
+def _mean_over_episodes(fitness: torch.Tensor, counts: list[int]) -> torch.Tensor:
+    """The mean reward over every training episode, from each task's mean and episode count."""
+    if len(counts) == 1:
+        return fitness[0]
+    weights = torch.tensor(counts, dtype=fitness.dtype, device=fitness.device)[:, None]
+    return (fitness * weights).sum(dim=0) / sum(counts)
 
 
 def _generations(phases: list[Phase], start: int) -> Iterator[tuple[int, int, int]]:
@@ -264,8 +326,8 @@ def _exports(optimizer, raw: torch.Tensor, regularised: torch.Tensor, generation
 
 def _finish_phase(run_dir: RunDir, optimizer, state: LoopState, phase_index: int, name: str,
                   scores: dict[str, Retention], exports: dict[str, dict[str, Any]]) -> None:
-    """Task end: record C and the retention on every task, write the exported controllers (the
-    top one also as the latest, final-top), and let the optimiser take its regulariser's reference."""
+    """Task end: record C and the retention on every task, and write the exported controllers
+    (the top one also as the latest, final-top)."""
     end = {"task": name, "C": scores[name].pop,
            "R_pop": {n: s.pop for n, s in scores.items()}, "R_top": {n: s.top for n, s in scores.items()}}
     if optimizer.centre_index is not None:
@@ -274,7 +336,6 @@ def _finish_phase(run_dir: RunDir, optimizer, state: LoopState, phase_index: int
     for kind, controller in exports.items():
         run_dir.write_controller(controller_key(phase_index, name, kind), controller)
     run_dir.write_controller("final-top", exports["top"])
-    optimizer.end_task()
 
 
 def _record_episodes(config, recorder, exported, tasks, generation, phase_index, name, env_config) -> None:

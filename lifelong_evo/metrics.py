@@ -19,6 +19,12 @@ fitness of the fresh random population (generation 0) on phase j's task:
   ACC = 1/T sum_j R[T-1][j]                 average final performance
   BWT = 1/(T-1) sum_{j<T-1} (R[T-1][j] - R[j][j])      backward transfer (Lopez-Paz & Ranzato 2017)
   FWT = 1/(T-1) sum_{j>=1} (R[j-1][j] - b_j)           forward transfer
+Read back from metrics.csv rows (``stability_gap``, ``forward_transfer_area``), for each switch to
+a phase k >= 1:
+  gap_u = (u's score at the last generation of phase k-1) - min over the first G generations of
+          phase k of R_u                  stability gap (De Lange et al. 2023), per earlier task u
+  FT_area_k = mean over phase k's generations g of (C(g) - C_scratch(g))   forward transfer as the
+          area between the run's curve and a from-scratch run's (Wolczyk et al. 2021)
 """
 from __future__ import annotations
 
@@ -95,10 +101,12 @@ class GenerationRecord:
 
 def summarise(phase_names: list[str], phase_ends: list[dict[str, Any]], initial: dict[str, dict[str, float]],
               wall_time_s: float, has_centre: bool, held_out: dict[str, dict[str, float]] | None = None,
-              held_out_episodes: int | None = None, first_task_from: str = "") -> dict[str, Any]:
+              held_out_episodes: int | None = None, first_task_from: str = "", *,
+              stability_gap: list[dict[str, Any]] | None = None) -> dict[str, Any]:
     """summary.json from the task-end records (``loop.LoopState.phase_ends``), the generation-0
     scores and, where given, the exported controllers' held-out scores (``held_out_summary``);
-    ``first_task_from``: the run whose first task this one took over (the wall time counts it)."""
+    ``first_task_from``: the run whose first task this one took over (the wall time counts it);
+    ``stability_gap``: the entries of ``stability_gap``, written as they are (None: no such key)."""
     summary: dict[str, Any] = {"phases": phase_names[:len(phase_ends)], "wall_time_s": wall_time_s,
                                **({"first_task_from": first_task_from} if first_task_from else {}),
                                "current": [end["C"] for end in phase_ends],
@@ -121,6 +129,8 @@ def summarise(phase_names: list[str], phase_ends: list[dict[str, Any]], initial:
             matrix = [[end[f"R_{level}"][name] for name in phase_names] for end in phase_ends]
             summary[f"R_{level}"] = matrix
             summary.update(_transfer(matrix, [initial["pop"][name] for name in phase_names], level))
+    if stability_gap is not None:
+        summary["stability_gap"] = stability_gap
     if held_out:
         summary["held_out"] = held_out_summary(phase_names, held_out, held_out_episodes)
     return summary
@@ -217,3 +227,86 @@ def _transfer(matrix: list[list[float]], baseline: list[float] | None, level: st
     bwt = sum(matrix[T - 1][j] - matrix[j][j] for j in range(T - 1)) / (T - 1)
     fwt = None if baseline is None else sum(matrix[j - 1][j] - baseline[j] for j in range(1, T)) / (T - 1)
     return {f"ACC_{level}": acc, f"BWT_{level}": bwt, f"FWT_{level}": fwt}
+
+
+CURRENT_COLUMNS = {"pop": "best", "top": "top", "centre": "centre"}
+"""A retention level -> the metrics.csv column of the same level's score on the current task."""
+
+
+def stability_gap(rows: list[dict[str, str]], phase_names: list[str], window: int) -> list[dict[str, Any]]:
+    """summary.json's ``stability_gap`` block from metrics.csv ``rows`` (as ``csv.DictReader``
+    yields them) of a run on the schedule ``phase_names``: for each switch to a phase k >= 1 that
+    the rows reach and each earlier task u (``_earlier_tasks``), one entry with ``after_switch_to``
+    (k), ``task`` (u), ``window`` (the generations among phase k's first ``window`` in which u was
+    scored) and per level (pop, top; centre where the run has its column):
+
+    - ``before_<level>``: u's score at the last generation of phase k-1; for phase k-1's own task
+      the current-task column (``CURRENT_COLUMNS``), for another task its retention cell, which a
+      task end always fills (None where the cell is empty: a run from before the ``top`` column);
+    - ``min_<level>``, ``generation_<level>``: the lowest retention of u over the
+      ``generation_in_task`` 0 .. ``window`` - 1 of phase k (empty cells skipped) and the global
+      generation of the first such minimum;
+    - ``gap_<level>``: before - min, positive for a dip (None where either is).
+
+    A (switch, task) pair without any retention value in the window has no entry."""
+    from .rundir import retention_column  # not at the top: rundir imports this module
+
+    by_phase: dict[int, list[dict[str, str]]] = {}
+    for row in rows:
+        by_phase.setdefault(int(row["task_index"]), []).append(row)
+    columns = set(rows[0]) if rows else set()
+    entries: list[dict[str, Any]] = []
+    for k in range(1, len(phase_names)):
+        if k not in by_phase or k - 1 not in by_phase:
+            continue
+        before_row = max(by_phase[k - 1], key=lambda row: int(row["generation"]))
+        opening = sorted((row for row in by_phase[k] if int(row["generation_in_task"]) < window),
+                         key=lambda row: int(row["generation"]))
+        for task in _earlier_tasks(phase_names, k):
+            kept = {level: retention_column(level, task) for level in CURRENT_COLUMNS
+                    if retention_column(level, task) in columns}
+            covered = sum(any(row[column] for column in kept.values()) for row in opening)
+            if not covered:
+                continue
+            entry: dict[str, Any] = {"after_switch_to": k, "task": task, "window": covered}
+            for level, column in kept.items():
+                cell = before_row.get(CURRENT_COLUMNS[level] if task == phase_names[k - 1] else column, "")
+                before = float(cell) if cell else None
+                measured = [(float(row[column]), int(row["generation"])) for row in opening if row[column]]
+                # min keeps the first of equal values, and ``opening`` runs in generation order
+                low, at = min(measured, key=lambda pair: pair[0]) if measured else (None, None)
+                entry.update({f"before_{level}": before, f"min_{level}": low, f"generation_{level}": at,
+                              f"gap_{level}": None if before is None or low is None else before - low})
+            entries.append(entry)
+    return entries
+
+
+def forward_transfer_area(rows: list[dict[str, str]], scratch_rows: list[dict[str, str]], phases: int
+                          ) -> dict[int, float]:
+    """FT_area_k per phase k in 1 .. ``phases`` - 1 (the phases both runs have ended): the mean
+    over phase k's generations of C(g) - C_scratch(g), C the ``best`` column of the run's metrics.csv
+    ``rows`` (or, in a phase where the current task's own ``retention_pop`` cells are filled, as a
+    run whose training mixes tasks writes them, those) and C_scratch that of ``scratch_rows``, a from-scratch run of the same configuration
+    and seed (``from_scratch``: the optimiser starts afresh at every task end), at the same
+    ``generation_in_task``; over the generations both rows have. Reward units, not normalised;
+    positive where what the run carried over from earlier tasks helped it on phase k."""
+    def curves(table: list[dict[str, str]]) -> dict[int, dict[int, float]]:
+        # a run whose training mixes tasks writes the current task's own best in its retention
+        # cells (its ``best`` is the mixture's): where a phase has them, they are its curve
+        found: dict[int, dict[int, float]] = {}
+        own: dict[int, dict[int, float]] = {}
+        for row in table:
+            phase, g = int(row["task_index"]), int(row["generation_in_task"])
+            if row.get("best"):
+                found.setdefault(phase, {})[g] = float(row["best"])
+            if row.get(f"retention_pop_{row['task']}"):
+                own.setdefault(phase, {})[g] = float(row[f"retention_pop_{row['task']}"])
+        return {**found, **own}
+
+    mine, theirs = curves(rows), curves(scratch_rows)
+    areas: dict[int, float] = {}
+    for k in range(1, phases):
+        shared = sorted(mine.get(k, {}).keys() & theirs.get(k, {}).keys())
+        if shared:
+            areas[k] = sum(mine[k][g] - theirs[k][g] for g in shared) / len(shared)
+    return areas

@@ -48,7 +48,7 @@ from .schedule import parse_schedule
 
 RESOLVED = (("env", "env_resolved"), ("algo_options", "algo_options_resolved"))
 """config.json's settings as given, each with its resolved form written beside it."""
-RESOLVED_KEYS = ("env_resolved", "algo_options_resolved", "versions")
+RESOLVED_KEYS = ("env_resolved", "algo_options_resolved", "training_episodes", "versions")
 """config.json's keys that are no RunConfig field."""
 
 
@@ -284,10 +284,10 @@ class RunDir:
 
     def write_config(self, config: RunConfig) -> None:
         """config.json: every RunConfig field, the resolved environment and algorithm options
-        (defaults included) and the library versions."""
+        (defaults included), each phase's training episodes per task and the library versions."""
         write_json(self.config, {**config.to_dict(), "env_resolved": config.env_config().to_dict(),
                                  "algo_options_resolved": config.algo_options_resolved(),
-                                 "versions": library_versions()})
+                                 "training_episodes": config.training_plan(), "versions": library_versions()})
 
     def read_config(self) -> RunConfig:
         """The configuration the run was created with."""
@@ -661,7 +661,7 @@ def _float(text: str) -> float:
 
 def configuration_of(config: dict[str, Any]) -> dict[str, Any]:
     """The settings of a config.json that make runs different configurations
-    (``RunConfig.configuration_settings``; the library versions are no setting). Where config.json
+    (``RunConfig.configuration_settings``; the library versions and the training plan are no setting). Where config.json
     holds the resolved environment and algorithm options, they stand for the ones given, so a
     default stated and a default left out are one configuration. (A run written before
     ``algo_options_resolved`` existed keeps its options as given: the defaults it ran with may
@@ -669,7 +669,8 @@ def configuration_of(config: dict[str, Any]) -> dict[str, Any]:
     options that shape only the regulariser (``Optimizer.regularizer_options``) are no setting:
     such runs evolve the same controllers whatever those options say."""
     # a setting that config.json lacks (written before the setting existed) ran at its default
-    values = {**RunConfig().to_dict(), **{k: v for k, v in config.items() if k != "versions"}}
+    # the training plan follows from the settings beside it, which compare already
+    values = {**RunConfig().to_dict(), **{k: v for k, v in config.items() if k not in ("versions", "training_episodes")}}
     for given, resolved in RESOLVED:
         if resolved in values:
             values.pop(given, None)

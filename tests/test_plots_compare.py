@@ -191,11 +191,10 @@ def test_compare_groups_configurations_and_matches_hand_computation(sweep, tmp_p
 def test_the_retention_figure_draws_every_task_kept_while_another_is_current(sweep, tmp_path, monkeypatch):
     """Red through green (solid) and green through red's return (dashed): the seeds' mean of
     metrics.csv's retention columns, for the population and the top individual."""
-    from lifelong_evo.commands import compare
     from lifelong_evo.rundir import read_metrics
 
     figures = {}
-    monkeypatch.setattr(compare, "save", lambda fig, path: figures.setdefault(path.name, fig) and path)
+    monkeypatch.setattr(plots, "save", lambda fig, path: figures.setdefault(path.name, fig) and path)
     plots.overlay_figures([sweep / "neat"], tmp_path)
     metrics = [read_metrics(p / "metrics.csv") for p in sorted((sweep / "neat").iterdir())]
     for ax, level in zip(figures["comparison-retention.png"].axes, ("pop", "top")):

@@ -17,8 +17,10 @@ regulariser's options, are one) and writes, to ``--out`` (default: the one folde
                      by seed within an algorithm, or Welch across algorithms and where they
                      share fewer than two seeds: difference, 95%
                      interval, p, effect size, seeds for 80% power, per outcome of the paper's
-                     tables); then per configuration its tables in full: C per phase, R and F at
-                     each later task end, ACC/BWT/FWT. Values are means over seeds with their
+                     tables and per curve figure both have: stability gaps, forward transfer
+                     areas); then per configuration its tables in full: C per phase, R and F at
+                     each later task end, ACC/BWT/FWT, and where the runs have them the stability
+                     gaps and forward transfer areas (below). Values are means over seeds with their
                      95% t-interval (one seed: the value alone); ``lifelong_evo.commands.statistics`` has
                      the formulas.
 ``comparison.csv``   every figure the tables show and more: per configuration, metric and kind of
@@ -41,8 +43,9 @@ held-out figures where the runs have the block and their selection-time ones els
 ``training`` shows the selection-time ones; ``both`` shows both. The population's figures are
 always training ones. comparison.csv holds every kind whatever ``--episodes`` says.
 
-Baselines. Without ``--baseline`` each configuration with a regulariser is compared with lambda 0
-of the same algorithm and otherwise the same settings, where such runs exist.
+Baselines. Without ``--baseline`` each configuration with a regulariser or a baseline setting
+(rehearsal, joint, from scratch, reference_every) is compared with fine-tuning (lambda 0 without
+them) of the same algorithm and otherwise the same settings, where such runs exist.
 ``--baseline KEY=VALUE,...`` names one configuration per schedule by its settings
 (``baseline_settings``: ``algo``, ``reg``, ``schedule``, the other settings of ``RunConfig``, the
 algorithm's options by name, the environment's as ``env.NAME``) and compares every other
@@ -50,6 +53,16 @@ configuration of that schedule with it; naming none, or several of one schedule,
 
 The markdown is printed too. ``compare_table(paths)`` returns ``(rows, markdown)`` for reuse;
 ``write_comparison`` writes the tables (``sweep`` uses it for its own directory).
+
+Curve figures (``commands/tables.py``, Curve figures). The stability gap comes from summary.json's
+``stability_gap`` block (``metrics.stability_gap``); runs without it have no such cells. The
+forward transfer area (``metrics.forward_transfer_area``) needs a from-scratch partner: a run with
+``from_scratch`` true among the runs compared, of the same configuration apart from
+``SCRATCH_APART`` and of the same seed (``scratch_partners``). Every run that is no from-scratch
+run and has one gets ``FT_area phase <k> (<task>)`` for each phase k >= 1 that both have ended,
+and their mean ``FT_area`` once both have ended every phase, from the two metrics.csv files
+(with several partners of one seed, the mean of their areas). Its configuration shows the mean
+over the seeds that have a partner.
 
 Model-specific lambda ("m.s. reg"): where a configuration ran several lambdas, the lambda per
 seed that ``commands/model_specific.py`` chooses, reported as a configuration of its own. The
@@ -67,21 +80,37 @@ from typing import Any
 
 from ..checkpoint import atomic_write_bytes
 from ..errors import UserError
-from ..rundir import Run, config_key, configuration_of, describe_config, group_runs, is_run_dir, load_runs, write_json
+from ..metrics import forward_transfer_area
+from ..rundir import (
+    Run,
+    config_key,
+    configuration_of,
+    describe_config,
+    group_runs,
+    is_run_dir,
+    load_runs,
+    read_metrics,
+    write_json,
+)
 from ..schedule import parse_schedule
 from .model_specific import CRITERION, model_specific_label, model_specific_report, select_model_specific
 from .plots import overlay_figures
 from .statistics import Difference, difference, seed_order
 from .tables import (
     CONTROLLERS,
+    FT_AREA,
     HELD_OUT,
     OVERVIEW,
+    STABILITY_GAP,
     TRAINING,
     TRAINING_KIND,
     Configuration,
+    Figure,
     Key,
     csv_head,
     csv_rows,
+    curve_outcomes,
+    ft_area_name,
     group_estimates,
     is_nan,
     outcomes,
@@ -154,19 +183,27 @@ def _equal(value: Any, wanted: Any) -> bool:
     return json.dumps(value) == json.dumps(wanted)
 
 
+FINE_TUNING = {"reg": 0.0, "rehearsal": 0.0, "joint": False, "from_scratch": False, "reference_every": 0}
+"""The settings of fine-tuning, every configuration's default baseline: no regulariser and none of
+the baselines of docs/metrics.md (the values as config.json writes them)."""
+
+
 def choose_baselines(configurations: list[Configuration], items: dict[str, str] | None) -> list[int | None]:
     """The index of each configuration's baseline in ``configurations`` (None: none, or itself).
-    Without ``items``: lambda 0 of the same algorithm and otherwise the same settings, for a
-    configuration with a regulariser. With ``items`` (``--baseline``): in each schedule, the one
+    Without ``items``: fine-tuning (``FINE_TUNING``: lambda 0 and no baseline setting) of the
+    same algorithm and otherwise the same settings, for a configuration with a regulariser or a
+    baseline setting. With ``items`` (``--baseline``): in each schedule, the one
     configuration whose ``baseline_settings`` has every item; UserError where no configuration
     matches, or several of one schedule do."""
     if items is None:
-        def at_lambda_0(config: dict[str, Any]) -> str:
-            return config_key({**config, "reg": 0.0})  # 0.0: as config.json writes lambda 0
+        def fine_tuned(config: dict[str, Any]) -> str:
+            return config_key({**config, **FINE_TUNING})
 
-        unregularised = {at_lambda_0(c.config): i for i, c in enumerate(configurations) if not float(c.config.get("reg") or 0)}
-        return [unregularised.get(at_lambda_0(c.config)) if float(c.config.get("reg") or 0) else None
-                for c in configurations]
+        keys = [config_key(c.config) for c in configurations]
+        fine_tuning = {fine_tuned(c.config): i for i, (c, key) in enumerate(zip(configurations, keys))
+                       if key == fine_tuned(c.config)}
+        return [None if key == fine_tuned(c.config) else fine_tuning.get(fine_tuned(c.config))
+                for c, key in zip(configurations, keys)]
     settings = [baseline_settings(c.config) for c in configurations]
     wanted = {}
     for key, text in items.items():
@@ -203,13 +240,14 @@ def pairable(config: Configuration, baseline: Configuration) -> bool:
     return config.config.get("algo") == baseline.config.get("algo")
 
 
-def differences(config: Configuration, baseline: Configuration) -> list[tuple[str, str, Key, Difference]]:
+def differences(config: Configuration, baseline: Configuration) -> list[tuple[str | None, str, Key, Difference]]:
     """(controller, heading, (kind, metric name), configuration minus baseline) for each outcome both have,
-    of every kind: the paper's figures (``outcomes``) of each controller, then of the population.
-    Paired by seed where the runs are ``pairable`` and share at least two seeds, else Welch
-    (``statistics.difference``)."""
+    of every kind: the paper's figures (``outcomes``) of each controller, then of the population,
+    then the curve figures (``curve_outcomes``: stability gaps, forward transfer areas; controller
+    None, as no ``--episodes`` choice hides them). Paired by seed where the runs are ``pairable``
+    and share at least two seeds, else Welch (``statistics.difference``)."""
     same_algo = pairable(config, baseline)
-    found: list[tuple[str, str, Key, Difference]] = []
+    found: list[tuple[str | None, str, Key, Difference]] = []
     kinds = [*((level, HELD_OUT) for level in CONTROLLERS), *TRAINING_KIND.items(), ("pop", TRAINING)]
     for level, kind in kinds:
         for heading, name in outcomes(config.phases, level):
@@ -217,6 +255,10 @@ def differences(config: Configuration, baseline: Configuration) -> list[tuple[st
             if mine and theirs and mine[1].values and theirs[1].values:
                 found.append((level, heading, (kind, name),
                               difference(mine[1].by_seed(), theirs[1].by_seed(), same_algo)))
+    for key in curve_outcomes(config.found):
+        mine, theirs = config.found[key], baseline.found.get(key)
+        if theirs and mine[1].values and theirs[1].values:
+            found.append((None, key[1], key, difference(mine[1].by_seed(), theirs[1].by_seed(), same_algo)))
     return found
 
 
@@ -235,7 +277,7 @@ def differences_section(config: Configuration, baseline: Configuration, episodes
     training; the controllers' kinds per ``shown_controllers`` of both), and the seeds left out."""
     shown = {("pop", TRAINING), *shown_controllers([config.found, baseline.found], episodes)}
     rows = [[heading, kind, *format_difference(d)] for level, heading, (kind, _), d in differences(config, baseline)
-            if (level, kind) in shown]
+            if level is None or (level, kind) in shown]
     seeds = {run.seed for run in config.runs}
     theirs = {run.seed for run in baseline.runs}
     paired = pairable(config, baseline) and len(seeds & theirs) >= 2
@@ -286,15 +328,92 @@ def compare_table(paths, episodes: str = "held-out", baseline: dict[str, str] | 
     return _table(load_runs(paths, with_metrics=False), episodes, baseline)
 
 
+SCRATCH_APART = ("from_scratch", "reg", "rehearsal", "joint", "reference_every", "training_episodes")
+"""The config.json keys in which a run and its from-scratch partner may differ: the partner is the
+same configuration learning each task afresh, whatever the run does to keep earlier tasks
+(``training_episodes`` only restates the rehearsal and joint settings)."""
+
+
+def is_from_scratch(config: dict[str, Any]) -> bool:
+    return bool(config.get("from_scratch", False))  # runs from before the setting lack it
+
+
+def scratch_key(config: dict[str, Any]) -> str:
+    """What a run and its from-scratch partner share: the configuration (``configuration_of``, at
+    lambda 0 so that the regulariser's options drop out as well) without ``SCRATCH_APART``."""
+    settings = configuration_of({**config, "reg": 0.0})
+    return json.dumps({k: v for k, v in settings.items() if k not in SCRATCH_APART}, sort_keys=True)
+
+
+def scratch_partners(runs: list[Run]) -> dict[Path, list[Run]]:
+    """Each run that is no from-scratch run -> the from-scratch runs among ``runs`` with its
+    ``scratch_key`` and its seed (runs without any are left out). Only the same seed: the two then
+    share their first task's sample path, and the seeds' variation does not enter the area."""
+    scratch: dict[tuple[str, Any], list[Run]] = {}
+    for run in runs:
+        if is_from_scratch(run.config):
+            scratch.setdefault((scratch_key(run.config), run.seed), []).append(run)
+    partners = {run.path: scratch.get((scratch_key(run.config), run.seed), [])
+                for run in runs if not is_from_scratch(run.config)}
+    return {path: found for path, found in partners.items() if found}
+
+
+def forward_transfer_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
+    """Per run with from-scratch partners (``scratch_partners``), its forward transfer areas as
+    figures: ``FT_area phase <k> (<task>)`` for each phase k >= 1 that the run and every partner
+    have ended (the mean over the partners), and ``FT_area``, their mean, once that is every phase
+    of the schedule. Reads the metrics.csv of those runs only."""
+    partners = scratch_partners(runs)
+    rows: dict[Path, list[dict[str, str]]] = {}  # a from-scratch run may partner several runs: read it once
+
+    def metrics(run: Run) -> list[dict[str, str]]:
+        if run.path not in rows:
+            path = run.path / "metrics.csv"
+            rows[run.path] = read_metrics(path) if path.exists() else []
+        return rows[run.path]
+
+    figures: dict[Path, list[Figure]] = {}
+    for run in runs:
+        if run.path not in partners:
+            continue
+        schedule = parse_schedule(str(run.config.get("schedule")), int(run.config.get("generations", 0)))
+        phases = [phase.name for phase in schedule]
+        ended = min(len(r.summary.get("phases", [])) for r in [run, *partners[run.path]])
+        areas = [forward_transfer_area(metrics(run), metrics(partner), ended) for partner in partners[run.path]]
+        per_phase = {k: sum(area[k] for area in areas) / len(areas) for k in range(1, ended)
+                     if all(k in area for area in areas)}
+        found: list[Figure] = [(FT_AREA, (TRAINING, ft_area_name(k, phases[k])), value)
+                               for k, value in per_phase.items()]
+        if len(phases) > 1 and len(per_phase) == len(phases) - 1:
+            found.append((FT_AREA, (TRAINING, ft_area_name()), sum(per_phase.values()) / len(per_phase)))
+        if found:
+            figures[run.path] = found
+    return figures
+
+
 def configurations(runs: list[Run]) -> list[Configuration]:
-    """The runs' configurations, in table order, with their estimates."""
+    """The runs' configurations, in table order, with their estimates (the forward transfer areas
+    included: ``forward_transfer_figures``)."""
     # each group by seed (numerically), so nothing below depends on the order the runs came in
     groups = [sorted(g, key=lambda r: (seed_order(r.seed), str(r.path))) for g in sorted_groups(group_runs(runs))]
     configs = [g[0].config for g in groups]
+    transfer = forward_transfer_figures(runs)
     return [Configuration(describe_config(config, configs), config, group,
                           [p.name for p in parse_schedule(str(config.get("schedule")), int(config.get("generations", 0)))],
-                          group_estimates(group), seed_count(group))
+                          group_estimates(group, transfer), seed_count(group))
             for group, config in zip(groups, configs)]
+
+
+CURVE_LEGEND = {STABILITY_GAP: "; gap: the stability gap (an earlier task's score at a switch minus its lowest "
+                               "retention in the first generations after it)",
+                FT_AREA: "; FT_area: forward transfer, the mean over a phase of C minus C of a from-scratch run of "
+                         "the same seed"}
+"""The header's words on each section of curve figures, where some configuration has it."""
+
+
+def curve_legend(configurations: list[Configuration]) -> str:
+    sections = {c.found[key][0] for c in configurations for key in curve_outcomes(c.found)}
+    return "".join(words for section_name, words in CURVE_LEGEND.items() if section_name in sections)
 
 
 def _table(runs: list[Run], episodes: str = "held-out", baseline: dict[str, str] | None = None
@@ -313,14 +432,17 @@ def _table(runs: list[Run], episodes: str = "held-out", baseline: dict[str, str]
         sections.append(section(f"## {c.label}", f"{len(c.runs)} seed(s): {seeds}", c.found, episodes))
     against = (["## Differences from the baseline", "",
                 "Each configuration against its baseline (" + ("named by --baseline" if baseline else
-                "lambda 0 of the same algorithm and otherwise the same settings") + "), per outcome of the paper's "
-                "tables.", "", *compared] if compared else [])
+                "fine-tuning: lambda 0 without rehearsal, joint or from scratch, of the same algorithm and "
+                "otherwise the same settings") + "), per outcome of the paper's "
+                "tables" + (" and per curve figure both have" if curve_legend(found) else "") + ".", "", *compared]
+               if compared else [])
     header = [f"# Comparison of {len(runs)} run(s) in {len(found)} configuration(s)", "",
               "Mean over seeds [95% t-interval]; a single seed shows its value. C: current performance at the end "
               "of a phase (the population's: its best; C_top: that of the top individual, the best by selection "
               "fitness; for an ES C_centre and C_best_sample: the search distribution's centre and the best "
               "sample); R/F: retention/forgetting of an earlier task; ACC/BWT/FWT: average final performance, "
-              "backward and forward transfer. Episodes: held-out (the exported controllers re-scored on the "
+              "backward and forward transfer" + curve_legend(found)
+              + ". Episodes: held-out (the exported controllers re-scored on the "
               "fixed held-out episodes), selection-time (the top individual on the training episodes it was "
               "selected on) or training (the population's best; an ES centre).", "",
               *table(["configuration", "n seeds", *OVERVIEW], overview), "", *paper_tables(found, episodes), *against]
@@ -341,8 +463,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--baseline", action="append", default=None, metavar="KEY=VALUE[,KEY=VALUE...]",
                         help="the configuration the others are compared with, named by its settings (algo, reg, "
                              "schedule, an option such as genetics, env.NAME): one per schedule, e.g. "
-                             "algo=neat,reg=0 (default: for each configuration with a regulariser, lambda 0 of the "
-                             "same algorithm and otherwise the same settings)")
+                             "algo=neat,reg=0 (default: for each configuration with a regulariser or a baseline setting, "
+                             "fine-tuning: lambda 0 without rehearsal, joint or from scratch, of the same algorithm "
+                             "and otherwise the same settings)")
     parser.add_argument("--episodes", choices=EPISODES_CHOICES, default="held-out",
                         help="the deployed controllers' figures in the tables: held-out (the default: where the "
                              "runs have summary.json's held_out block, else the selection-time ones), training "

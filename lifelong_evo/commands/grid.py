@@ -25,7 +25,9 @@ RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in NESTED]
 _TYPES = schema(RunConfig)
 _LABELS = {"reg": "reg", "seed": "seed", "population": "pop", "generations": "gen", "evals": "evals",
            "retention_every": "ret", "checkpoint_every": "ckpt", "threads": "threads", "eval_threads": "evalthreads",
-           "episodes_every": "ep"}
+           "episodes_every": "ep", "rehearsal": "rehearsal", "reference_every": "refevery", "gap_window": "gap"}
+_SWITCHES = {"joint": "joint", "from_scratch": "scratch"}
+"""Boolean run settings named in a trial's name by themselves (``neat-joint-seed42``)."""
 @dataclass
 class Trial:
     name: str
@@ -310,6 +312,8 @@ def trial_name(values: dict[str, Any], config: RunConfig) -> str:
             parts.append(_slug(value))
         elif key == "record":
             parts.append("rec" if value else "norec")
+        elif key in _SWITCHES:  # a baseline on or off: its name or nothing
+            parts.append(_SWITCHES[key] if value is True else f"no-{_SWITCHES[key]}")
         else:
             parts.append(_LABELS.get(key, key.split(".")[-1]) + _slug(value))
     return "-".join(parts)

@@ -10,6 +10,9 @@ configuration apart from the others plotted (``rundir.config_differences``, e.g.
                                  drifts as grey dashed vertical lines
 ``<prefix>-retention-top.png``  the top individual's current fitness (solid) and retention
                                  R_top (dashed); without a regulariser its current fitness is C
+                                 (both: where summary.json has the ``stability_gap`` block, each
+                                 seed's lowest retention after a switch as a triangle, in the
+                                 earlier task's colour)
 ``<prefix>-species.png``        NEAT: the number of species over generations
 ``<prefix>-lifespans[-seed<S>].png``  NEAT: each species' life (birth to extinction) and size,
                                  from ``species.csv`` (generation, species_id, size); one per seed
@@ -105,6 +108,24 @@ def band(ax, generations, values, color, linestyle, label, marker=None):
         ax.fill_between(generations, low, high, color=color, alpha=0.18, linewidth=0)
 
 
+GAP_MARKER = "v"
+"""The marker of a stability gap's minimum."""
+
+
+def mark_stability_gaps(ax, group: list[Run], level: str) -> None:
+    """Each run's stability-gap minima of ``level`` (summary.json's ``stability_gap`` block: the
+    lowest retention of an earlier task in the first generations after a switch) as a triangle at
+    (``generation_<level>``, ``min_<level>``) in that task's colour: one per seed, since the mean
+    curve of several seeds need not pass through any seed's minimum."""
+    label = "stability gap: lowest retention after a switch"
+    for run in group:
+        for entry in run.summary.get("stability_gap") or []:
+            if entry.get(f"min_{level}") is not None:
+                ax.plot([entry[f"generation_{level}"]], [entry[f"min_{level}"]], linestyle="none", marker=GAP_MARKER,
+                        markersize=8, color=task_color(entry["task"]), markeredgecolor="0.1", zorder=4, label=label)
+                label = None
+
+
 def draw_drifts(ax, run: Run) -> None:
     for i, g in enumerate(drift_generations(run)):
         ax.axvline(g - 0.5, color="0.3", linestyle=(0, (6, 4)), linewidth=1.1, label="drift" if i == 0 else None)
@@ -132,6 +153,7 @@ def figure_retention(group: list[Run], level: str, path: Path, label: str) -> Pa
     for task, (generations, values) in retention_by_task(group, level).items():
         marker = "o" if len(generations) < 40 else None
         band(ax, generations, values, task_color(task), "--", f"{task}: {what.split(' R_')[0]}", marker=marker)
+    mark_stability_gaps(ax, group, level)
     draw_drifts(ax, group[0])
     ax.set_xlabel("generation")
     ax.set_ylabel("fitness (reward per episode)")

@@ -8,6 +8,15 @@ Episodes. Every figure names the episodes it was scored on: ``held-out`` (summar
 for every run), ``selection-time`` (the top individual's score on the training episodes it was
 selected on) or ``training`` (the population's best, and an ES centre's, on the training
 episodes; no held-out counterpart).
+
+Curve figures. Besides the task-end figures, two are read off the per-generation curves
+(``CURVE_SECTIONS``; neither has a held-out counterpart, so every table shows them whatever
+``--episodes`` says): the stability gap of summary.json's ``stability_gap`` block,
+``gap_<level> <task> after switch to phase <k>`` (``gap_pop``: training, ``gap_top``:
+selection-time, ``gap_centre``: training), and the forward transfer area against a from-scratch
+run of the same seed, ``FT_area phase <k> (<task>)`` and their mean ``FT_area`` (training: the
+population's best), which ``compare`` computes from the runs' metrics.csv and passes in as
+``extra`` figures.
 """
 from __future__ import annotations
 
@@ -87,12 +96,37 @@ Key = tuple[str, str]
 """A figure: (kind of episodes, metric name), e.g. ``("held-out", "R_top red at end of phase 1")``."""
 
 
-def run_metrics(summary: dict[str, Any]) -> list[tuple[str, Key, float | None]]:
+Figure = tuple[str, Key, float | None]
+"""One run's figure: (its section, its key, its value)."""
+
+
+STABILITY_GAP, FT_AREA = "stability gap", "forward transfer area"
+CURVE_SECTIONS = (STABILITY_GAP, FT_AREA)
+"""The sections of the figures read off per-generation curves (the module docstring)."""
+
+
+GAP_KINDS = {"pop": TRAINING, "top": SELECTION_TIME, "centre": TRAINING}
+"""The episodes of each level's stability gap: those of its retention figures (R_pop, R_top, R_centre)."""
+
+
+def gap_name(level: str, task: str, switch: int) -> str:
+    """The metric name of a stability gap: ``gap_top red after switch to phase 1``."""
+    return f"gap_{level} {task} after switch to phase {switch}"
+
+
+def ft_area_name(phase: int | None = None, task: str | None = None) -> str:
+    """The metric name of phase ``phase``'s forward transfer area, ``FT_area phase 1 (green)``, or
+    of their mean over the phases, ``FT_area`` (no phase)."""
+    return "FT_area" if phase is None else f"FT_area phase {phase} ({task})"
+
+
+def run_metrics(summary: dict[str, Any]) -> list[Figure]:
     """(section, (kind, metric name), value) of one run's summary.json, in table order: the
     training-episode figures (the population's: training; the top individual's: selection-time;
-    an ES centre's: training), then those of the ``held_out`` block (held-out), then the wall time
+    an ES centre's: training), then those of the ``held_out`` block (held-out), then the stability
+    gaps (``gap_name``; none where the summary has no ``stability_gap`` block), then the wall time
     (kind ``""``)."""
-    out: list[tuple[str, Key, float | None]] = []
+    out: list[Figure] = []
 
     def add(kind: str, part: dict[str, Any], current: dict[str, str], forgetting: dict[str, str],
             transfer: list[str]) -> None:
@@ -123,6 +157,11 @@ def run_metrics(summary: dict[str, Any]) -> list[tuple[str, Key, float | None]]:
         add({name: HELD_OUT for name in [f"C_{level}" for level in levels] + transfer}, held,
             {f"C_{level}": f"current_{level}" for level in levels},
             {f"{m}_{level}": HELD_OUT for level in levels for m in ("R", "F")}, transfer)
+    for entry in summary.get("stability_gap") or []:
+        for level, kind in GAP_KINDS.items():
+            if f"gap_{level}" in entry:
+                out.append((STABILITY_GAP, (kind, gap_name(level, entry["task"], entry["after_switch_to"])),
+                            entry[f"gap_{level}"]))
     if summary.get("wall_time_s") is not None:
         out.append(("cost", ("", "wall time (min)"), summary["wall_time_s"] / 60))
     return out
@@ -132,19 +171,26 @@ Estimates = dict[Key, tuple[str, Estimate]]
 """(kind, metric name) -> (its section in ``run_metrics``, its estimate over seeds)."""
 
 
-def estimates(runs: list[tuple[Any, dict[str, Any]]]) -> Estimates:
-    """Every figure of ``run_metrics`` over ``runs``, (seed, summary.json dict) pairs."""
+def estimates(runs: list[tuple[Any, dict[str, Any]]], extra: list[list[Figure]] | None = None) -> Estimates:
+    """Every figure of ``run_metrics`` over ``runs``, (seed, summary.json dict) pairs, and of
+    ``extra``: per run, in the same order, figures that its summary.json does not hold."""
     per_metric: dict[Key, tuple[str, list, list]] = {}
-    for seed, summary in runs:
-        for section_name, key, value in run_metrics(summary):
+    for (seed, summary), more in zip(runs, extra if extra is not None else [[] for _ in runs], strict=True):
+        for section_name, key, value in [*run_metrics(summary), *more]:
             _, seeds, values = per_metric.setdefault(key, (section_name, [], []))
             seeds.append(seed)
             values.append(value)
     return {key: (section_name, Estimate.of(values, seeds)) for key, (section_name, seeds, values) in per_metric.items()}
 
 
-def group_estimates(group: list[Run]) -> Estimates:
-    return estimates([(run.seed, run.summary) for run in group])
+def group_estimates(group: list[Run], extra: dict[Path, list[Figure]] | None = None) -> Estimates:
+    """``estimates`` of a configuration's runs; ``extra``: figures by run directory."""
+    return estimates([(run.seed, run.summary) for run in group], [(extra or {}).get(run.path, []) for run in group])
+
+
+def curve_outcomes(found: Estimates) -> list[Key]:
+    """The figures of ``found`` read off per-generation curves (``CURVE_SECTIONS``), in order."""
+    return [key for key, (section_name, _) in found.items() if section_name in CURVE_SECTIONS]
 
 
 def has_figures(found: Estimates, level: str, kind: str) -> bool:
@@ -208,7 +254,33 @@ def section(heading: str, intro: str, found: Estimates, episodes: str) -> str:
     if rows:
         lines += table(["controller (episodes)", "ACC", "BWT", "FWT"], rows)
         lines.append("")
+    lines += _curve_tables(found)
     return "\n".join(lines)
+
+
+def _curve_tables(found: Estimates) -> list[str]:
+    """The stability gaps (a row per earlier task and switch, a column per level) and the forward
+    transfer areas (a row per phase, then their mean) of ``found``, where it has them."""
+    lines: list[str] = []
+    prefix = "gap_pop "  # every entry of the block has the population's gap
+    wheres = [name[len(prefix):] for (_, name), (sec, _) in found.items()
+              if sec == STABILITY_GAP and name.startswith(prefix)]
+    if wheres:
+        columns = [(level, kind) for level, kind in GAP_KINDS.items()
+                   if present(found, [(kind, f"gap_{level} {where}") for where in wheres])]
+        lines += ["Stability gap: an earlier task's score at the switch minus its lowest retention in the first "
+                  "generations after it (positive: a dip).", "",
+                  *table(["earlier task after the switch", *(f"gap_{level} ({kind})" for level, kind in columns)],
+                         [[where, *(cell(found, (kind, f"gap_{level} {where}")) for level, kind in columns)]
+                          for where in wheres]), ""]
+    phases = [name for (_, name), (sec, _) in found.items() if sec == FT_AREA and name != ft_area_name()]
+    if phases:
+        rows = [[name[len(ft_area_name()) + 1:], cell(found, (TRAINING, name))] for name in phases]
+        if (TRAINING, ft_area_name()) in found:
+            rows.append(["mean over phases >= 1", cell(found, (TRAINING, ft_area_name()))])
+        lines += ["Forward transfer area: mean over a phase's generations of C minus C of the from-scratch run "
+                  "of the same seed.", "", *table(["phase", "FT_area (training)"], rows), ""]
+    return lines
 
 
 def outcomes(phases: list[str], level: str) -> list[tuple[str, str]]:
