@@ -62,6 +62,11 @@ class Retention:
     centre: float | None = None
 
 
+def retention_column(level: str, task: str) -> str:
+    """The metrics.csv column of ``level``'s retention of ``task``: ``retention_pop_red``."""
+    return f"retention_{level}_{task}"
+
+
 def retention(scores: torch.Tensor, selection: torch.Tensor, centre_index: int | None) -> Retention:
     """Population, top-individual (and centre) retention from one task's fitness ``scores``; the
     top individual is the best by ``selection``, the fitness selection uses on the current task."""
@@ -249,7 +254,6 @@ def stability_gap(rows: list[dict[str, str]], phase_names: list[str], window: in
     - ``gap_<level>``: before - min, positive for a dip (None where either is).
 
     A (switch, task) pair without any retention value in the window has no entry."""
-    from .rundir import retention_column  # not at the top: rundir imports this module
 
     by_phase: dict[int, list[dict[str, str]]] = {}
     for row in rows:
@@ -299,8 +303,8 @@ def forward_transfer_area(rows: list[dict[str, str]], scratch_rows: list[dict[st
             phase, g = int(row["task_index"]), int(row["generation_in_task"])
             if row.get("best"):
                 found.setdefault(phase, {})[g] = float(row["best"])
-            if row.get(f"retention_pop_{row['task']}"):
-                own.setdefault(phase, {})[g] = float(row[f"retention_pop_{row['task']}"])
+            if row.get(retention_column("pop", row["task"])):
+                own.setdefault(phase, {})[g] = float(row[retention_column("pop", row["task"])])
         return {**found, **own}
 
     mine, theirs = curves(rows), curves(scratch_rows)

@@ -43,7 +43,7 @@ from . import checkpoint
 from .checkpoint import atomic_write_bytes
 from .config import RunConfig
 from .errors import UserError
-from .metrics import GenerationRecord
+from .metrics import GenerationRecord, retention_column
 from .schedule import parse_schedule
 
 RESOLVED = (("env", "env_resolved"), ("algo_options", "algo_options_resolved"))
@@ -446,11 +446,6 @@ RETENTION_LEVELS = ("pop", "top", "centre")
 SPECIES_COLUMNS = ("generation", "species_id", "size")
 INTEGER_COLUMNS = {*FIXED_COLUMNS, "species", *SPECIES_COLUMNS}
 """Integer columns of metrics.csv and species.csv; ``task`` is text, every other column a number."""
-
-
-def retention_column(level: str, task: str) -> str:
-    """The column of ``level``'s retention of ``task``: ``retention_pop_red``."""
-    return f"retention_{level}_{task}"
 
 
 def retention_columns(columns: Iterable[str], level: str) -> dict[str, str]:

@@ -64,7 +64,7 @@ def parse_schedule(spec: str, generations: int) -> list[Phase]:
         except ValueError:
             raise ScheduleError(f"bad generation count {count!r} in schedule item {item!r}: write e.g. red:200") from None
         if not 1 <= n <= MAX_GENERATIONS:
-            raise ScheduleError(f"every item of schedule {spec!r} needs from 1 to {MAX_GENERATIONS} generations")
+            raise ScheduleError(f"every task of schedule {spec!r} needs from 1 to {MAX_GENERATIONS} generations")
         phases.append(Phase(TASKS[name], n, TASKS[source] if blend else None))
     return phases
 

@@ -51,3 +51,22 @@ def test_a_policy_without_shard_is_played_in_one_thread():
     alone = _fitness(Unsharded(), 1)
     assert alone.abs().sum() > 0, "the controllers must score for the test to bite"
     assert torch.equal(_fitness(Unsharded(), 2), alone)
+
+
+def test_a_reset_from_a_state_leaves_that_state_as_given():
+    """The arena shares tensors with the state it is made from (``Arena.from_state``): a step must
+    never write into them, or the caller's episodes (a fixed held-out set, say) change under it."""
+    from dataclasses import fields
+
+    from envs import ForagingEnv
+
+    env = ForagingEnv(DENSE, batch_size=4)
+    state = env.sample_state(TASKS["red"], torch.Generator().manual_seed(2))
+    given = {f.name: getattr(state, f.name).clone() for f in fields(state)}
+    env.reset(state=state)
+    wheels = torch.ones(4, DENSE.n_agents, 3)
+    for _ in range(DENSE.duration):
+        env.step(wheels)
+    assert int(env.state.steps.min()) > 0, "the episodes must have run for the test to bite"
+    for name, value in given.items():
+        assert torch.equal(getattr(state, name), value), name
