@@ -285,27 +285,39 @@ def stability_gap(rows: list[dict[str, str]], phase_names: list[str], window: in
     return entries
 
 
+CURRENT_LEVELS = {"pop": "best", "top": "top"}
+"""A level of the current task's score -> its metrics.csv column."""
+
+
+def current_curve(rows: list[dict[str, str]], level: str = "pop") -> list[float | None]:
+    """The current task's score per metrics.csv row (None where there is none): the ``best``
+    (pop) or ``top`` column; but in a phase where the current task's own retention cells are
+    filled, as a run whose training mixes tasks writes them (its ``best`` and ``top`` are the
+    mixture's: docs/metrics.md, Baselines), those cells alone."""
+    own_phases = {row["task_index"] for row in rows if row.get(retention_column(level, row["task"]))}
+    return [_number(row.get(retention_column(level, row["task"]) if row["task_index"] in own_phases
+                            else CURRENT_LEVELS[level], "")) for row in rows]
+
+
+def _number(cell: str) -> float | None:
+    return float(cell) if cell else None
+
+
 def forward_transfer_area(rows: list[dict[str, str]], scratch_rows: list[dict[str, str]], phases: int
                           ) -> dict[int, float]:
     """FT_area_k per phase k in 1 .. ``phases`` - 1 (the phases both runs have ended): the mean
-    over phase k's generations of C(g) - C_scratch(g), C the ``best`` column of the run's metrics.csv
-    ``rows`` (or, in a phase where the current task's own ``retention_pop`` cells are filled, as a
-    run whose training mixes tasks writes them, those) and C_scratch that of ``scratch_rows``, a from-scratch run of the same configuration
-    and seed (``from_scratch``: the optimiser starts afresh at every task end), at the same
-    ``generation_in_task``; over the generations both rows have. Reward units, not normalised;
-    positive where what the run carried over from earlier tasks helped it on phase k."""
+    over phase k's generations of C(g) - C_scratch(g), C the run's ``current_curve`` (the ``best``
+    column, or a mixed run's own cells) from its metrics.csv ``rows`` and C_scratch that of
+    ``scratch_rows``, a from-scratch run of the same configuration and seed (``from_scratch``:
+    the optimiser starts afresh at every task end), at the same ``generation_in_task``; over the
+    generations both have. Reward units, not normalised; positive where what the run carried
+    over from earlier tasks helped it on phase k."""
     def curves(table: list[dict[str, str]]) -> dict[int, dict[int, float]]:
-        # a run whose training mixes tasks writes the current task's own best in its retention
-        # cells (its ``best`` is the mixture's): where a phase has them, they are its curve
         found: dict[int, dict[int, float]] = {}
-        own: dict[int, dict[int, float]] = {}
-        for row in table:
-            phase, g = int(row["task_index"]), int(row["generation_in_task"])
-            if row.get("best"):
-                found.setdefault(phase, {})[g] = float(row["best"])
-            if row.get(retention_column("pop", row["task"])):
-                own.setdefault(phase, {})[g] = float(row[retention_column("pop", row["task"])])
-        return {**found, **own}
+        for row, value in zip(table, current_curve(table)):
+            if value is not None:
+                found.setdefault(int(row["task_index"]), {})[int(row["generation_in_task"])] = value
+        return found
 
     mine, theirs = curves(rows), curves(scratch_rows)
     areas: dict[int, float] = {}

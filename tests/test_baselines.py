@@ -257,3 +257,18 @@ def test_a_mixed_run_writes_the_current_tasks_own_curve_and_forward_transfer_rea
     own = [float(row["retention_pop_green"]) for row in rows[2:]]
     scratch = [{**row, "best": "1.0"} for row in plain]
     assert forward_transfer_area(rows, scratch, 2) == {1: pytest.approx(sum(own) / 3 - 1.0)}
+
+
+def test_the_figures_draw_a_mixed_runs_own_current_curve(tmp_path):
+    from lifelong_evo.commands.plots import current_by_task, stack_current
+    from lifelong_evo.rundir import load_runs
+
+    run_dir = _run(tmp_path, "rehearsal", schedule="red:2,green:3", evals=4, rehearsal=0.5, gap_window=0)
+    rows = _rows(run_dir)
+    (run,) = load_runs([run_dir.path])
+    own = [float(row["retention_pop_green"]) for row in rows[2:]]
+    generations, values = current_by_task([run])["green"]
+    assert list(values[0][2:]) == own and all(value != value for value in values[0][:2])  # NaN: red's phase
+    _, drawn = stack_current([run])
+    assert list(drawn[0]) == [float(rows[0]["best"]), float(rows[1]["best"]), *own]
+    assert own != [float(row["best"]) for row in rows[2:]], "the mixture's best must differ for the test to bite"

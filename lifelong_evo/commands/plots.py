@@ -39,6 +39,7 @@ from algorithms import REGISTRY
 from envs import task_rgb
 
 from ..errors import UserError
+from ..metrics import CURRENT_LEVELS, current_curve
 from ..rundir import Run, config_differences, describe_config, group_runs, load_runs, retention_columns
 from ..schedule import parse_schedule
 from .tables import sorted_groups
@@ -66,10 +67,20 @@ def stack(group: list[Run], column: str) -> tuple[np.ndarray, np.ndarray]:
     return generations, np.stack([run.column(column)[:length] for run in group])
 
 
+def stack_current(group: list[Run], level: str = "pop") -> tuple[np.ndarray, np.ndarray]:
+    """``stack`` of the current task's score (``metrics.current_curve``), cut to the shortest run."""
+    length = min(len(run.metrics) for run in group)
+    values = [[np.nan if v is None else v for v in current_curve(run.metrics[:length], level)] for run in group]
+    return group[0].generations[:length], np.array(values, dtype=float)
+
+
 def current_by_task(group: list[Run], column: str = "best") -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Per task: (generations, values (seeds, generations)) of ``column`` masked to the generations
-    where that task is the current one (NaN elsewhere, so that phases are separate lines)."""
-    generations, values = stack(group, column)
+    where that task is the current one (NaN elsewhere, so that phases are separate lines); for
+    ``best`` and ``top``, the current task's own score (``metrics.current_curve``: where training
+    mixed tasks, not the mixture's)."""
+    level = {value: key for key, value in CURRENT_LEVELS.items()}.get(column)
+    generations, values = stack(group, column) if level is None else stack_current(group, level)
     tasks = np.array(group[0].tasks[:len(generations)])
     out = {}
     for task in dict.fromkeys(tasks):
@@ -405,7 +416,7 @@ def overlay_figures(paths, out: Path) -> list[Path]:
         schedule = str(groups[0][0].config.get("schedule", ""))
         suffix = "" if len(by_schedule) == 1 else f"-{index}-" + re.sub(r"[^A-Za-z0-9]+", "-", schedule).strip("-")
         fig, ax = plt.subplots(figsize=(13, 5), constrained_layout=True)
-        _overlay(ax, groups, configs, _column("best"))
+        _overlay(ax, groups, configs, stack_current)
         ax.set_title(f"Current performance C (best of the population on the current task), schedule {schedule}\n"
                      "mean over seeds, band: min-max; coloured strip: the current task", fontsize=10)
         ax.set_ylabel("fitness (reward per episode)")
