@@ -378,3 +378,40 @@ def test_the_paper_genetics_study(capsys):
     _, markdown = compare_table([REPO / "docs" / "data" / "paper-genetics"])
     assert "| red R_top | selection-time | +6.84 [-4.15, +17.83] | 0.125 | +0.77 | 5 | 16 |" in markdown
     assert "| green C_top | selection-time | -10.36 [-23.39, +2.67] | 0.0625 | -0.99 | 5 | 11 |" in markdown
+
+
+def test_holm_against_its_definition_worked_by_hand():
+    from lifelong_evo.commands.statistics import holm
+
+    # sorted 0.005, 0.01, 0.03, 0.04 -> 4 x 0.005, 3 x 0.01, max(that, 2 x 0.03), max(that, 1 x 0.04)
+    assert holm([0.01, 0.04, 0.03, 0.005]) == pytest.approx([0.03, 0.06, 0.06, 0.02])
+    assert holm([0.5, 0.6]) == [1.0, 1.0]  # capped at 1
+    assert holm([0.02]) == [0.02] and holm([]) == []
+
+
+def test_compare_adds_the_holm_p_of_a_named_family(tmp_path, capsys):
+    """The paper-genetics runs in docs/data: four secondary outcomes, p 0.0625, 0.125, 0.125, 0.125
+    (exact sign-flip, five seeds), whose Holm p are 0.25 and three times 0.375; the CSV has them too."""
+    data = Path(__file__).resolve().parents[1] / "docs/data/paper-genetics"
+    family = ["selection-time:green C_top", "selection-time:red F_top", "training:red R_pop",
+              "selection-time:red C_top (returns)"]
+    assert cli_main(["compare", str(data), "--out", str(tmp_path / "cmp"),
+                     *(flag for item in family for flag in ("--holm", item))]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "cmp/comparison.csv")))
+    adjusted = {(r["episodes"], r["metric"]): r["p_holm"] for r in rows if r["statistic"] == "paired difference"}
+    named = {value for value in adjusted.values() if value}
+    assert sorted(float(v) for v in named) == [0.25, 0.375] and sum(bool(v) for v in adjusted.values()) == 4
+    markdown = (tmp_path / "cmp/comparison.md").read_text()
+    assert "| green C_top | selection-time | -10.36 [-23.39, +2.67] | 0.0625 | -0.99 | 5 | 11 | 0.25 |" in markdown
+    assert "| red R_pop | training | +7.58 [+0.18, +14.98] | 0.125 | +1.27 | 5 | 8 | 0.375 |" in markdown
+    assert "| red R_top | selection-time | +6.84 [-4.15, +17.83] | 0.125 | +0.77 | 5 | 16 | - |" in markdown
+
+
+@pytest.mark.parametrize("given, says", [("greenC", "is not KIND:OUTCOME"),
+                                         ("held-out:green C", "no difference table has that outcome")])
+def test_a_bad_holm_family_is_refused_before_anything_is_written(tmp_path, capsys, given, says):
+    data = Path(__file__).resolve().parents[1] / "docs/data/paper-genetics"
+    assert cli_main(["compare", str(data), "--out", str(tmp_path / "cmp"), "--holm", given]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --holm") and says in err and err.count("\n") == 1
+    assert not (tmp_path / "cmp").exists()

@@ -74,7 +74,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -95,12 +95,13 @@ from ..rundir import (
 from ..schedule import parse_schedule
 from .model_specific import CRITERION, model_specific_label, model_specific_report, select_model_specific
 from .plots import overlay_figures
-from .statistics import Difference, difference, seed_order
+from .statistics import Difference, difference, holm, seed_order
 from .tables import (
     CONTROLLERS,
     FT_AREA,
     HELD_OUT,
     OVERVIEW,
+    SELECTION_TIME,
     STABILITY_GAP,
     TRAINING,
     TRAINING_KIND,
@@ -188,6 +189,41 @@ FINE_TUNING = {"reg": 0.0, "rehearsal": 0.0, "joint": False, "from_scratch": Fal
 the baselines of docs/metrics.md (the values as config.json writes them)."""
 
 
+KINDS = (HELD_OUT, SELECTION_TIME, TRAINING)
+"""The kinds of episodes a figure is scored on."""
+HolmFamily = tuple[tuple[str, str], ...]
+"""(kind of episodes, outcome) pairs tested as one family (``--holm``)."""
+
+
+def parse_holm(given: list[str] | None) -> HolmFamily:
+    """``--holm KIND:OUTCOME`` (each given once or more) as (kind, outcome) pairs."""
+    family = []
+    for item in given or []:
+        kind, colon, outcome = item.partition(":")
+        if not colon or kind not in KINDS or not outcome.strip():
+            raise UserError(f"--holm {item!r} is not KIND:OUTCOME with KIND one of {', '.join(KINDS)}: name an "
+                            "outcome as the differences tables do, e.g. --holm 'held-out:green C_top'")
+        family.append((kind, outcome.strip()))
+    if len(set(family)) != len(family):
+        raise UserError("--holm names an outcome twice: give each outcome of the family once")
+    return tuple(family)
+
+
+def _check_family(family: HolmFamily, configurations: list[Configuration], baselines: list[int | None]) -> None:
+    """UserError where an outcome of ``family`` is in no difference table: a misspelt one would
+    otherwise leave the family smaller than stated, and its p-values too small."""
+    present = {(kind, heading) for c, b in zip(configurations, baselines) if b is not None
+               for _, heading, (kind, _), _ in differences(c, configurations[b])}
+    missing = [f"{kind}:{heading}" for kind, heading in family if (kind, heading) not in present]
+    if missing:
+        raise UserError(f"--holm {', '.join(missing)}: no difference table has that outcome; name outcomes as the "
+                        "tables do (outcome column, with its episodes), e.g. --holm 'held-out:green C_top'")
+
+
+def _p(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3g}"
+
+
 def choose_baselines(configurations: list[Configuration], items: dict[str, str] | None) -> list[int | None]:
     """The index of each configuration's baseline in ``configurations`` (None: none, or itself).
     Without ``items``: fine-tuning (``FINE_TUNING``: lambda 0 and no baseline setting) of the
@@ -240,12 +276,15 @@ def pairable(config: Configuration, baseline: Configuration) -> bool:
     return config.config.get("algo") == baseline.config.get("algo")
 
 
-def differences(config: Configuration, baseline: Configuration) -> list[tuple[str | None, str, Key, Difference]]:
+def differences(config: Configuration, baseline: Configuration, family: HolmFamily = ()
+                ) -> list[tuple[str | None, str, Key, Difference]]:
     """(controller, heading, (kind, metric name), configuration minus baseline) for each outcome both have,
     of every kind: the paper's figures (``outcomes``) of each controller, then of the population,
     then the curve figures (``curve_outcomes``: stability gaps, forward transfer areas; controller
     None, as no ``--episodes`` choice hides them). Paired by seed where the runs are ``pairable``
-    and share at least two seeds, else Welch (``statistics.difference``)."""
+    and share at least two seeds, else Welch (``statistics.difference``). The outcomes of
+    ``family`` ((kind, outcome) pairs, ``--holm``) get their Holm-Bonferroni p (``p_holm``) over
+    those of them this pair of configurations has."""
     same_algo = pairable(config, baseline)
     found: list[tuple[str | None, str, Key, Difference]] = []
     kinds = [*((level, HELD_OUT) for level in CONTROLLERS), *TRAINING_KIND.items(), ("pop", TRAINING)]
@@ -259,6 +298,9 @@ def differences(config: Configuration, baseline: Configuration) -> list[tuple[st
         mine, theirs = config.found[key], baseline.found.get(key)
         if theirs and mine[1].values and theirs[1].values:
             found.append((None, key[1], key, difference(mine[1].by_seed(), theirs[1].by_seed(), same_algo)))
+    tested = [i for i, (_, heading, (kind, _), d) in enumerate(found) if (kind, heading) in family and d.p is not None]
+    for i, adjusted in zip(tested, holm([found[i][3].p for i in tested])):
+        found[i] = (*found[i][:3], replace(found[i][3], p_holm=adjusted))
     return found
 
 
@@ -272,11 +314,13 @@ def format_difference(d: Difference) -> list[str]:
     return [f"{d.mean:+.2f}{interval}", p, effect, n, power]
 
 
-def differences_section(config: Configuration, baseline: Configuration, episodes: str) -> str:
+def differences_section(config: Configuration, baseline: Configuration, episodes: str, family: HolmFamily = ()
+                        ) -> str:
     """The markdown of ``config`` against ``baseline``: a row per outcome shown (the population's,
     training; the controllers' kinds per ``shown_controllers`` of both), and the seeds left out."""
     shown = {("pop", TRAINING), *shown_controllers([config.found, baseline.found], episodes)}
-    rows = [[heading, kind, *format_difference(d)] for level, heading, (kind, _), d in differences(config, baseline)
+    rows = [[heading, kind, *format_difference(d)] + ([_p(d.p_holm)] if family else [])
+            for level, heading, (kind, _), d in differences(config, baseline, family)
             if level is None or (level, kind) in shown]
     seeds = {run.seed for run in config.runs}
     theirs = {run.seed for run in baseline.runs}
@@ -301,21 +345,25 @@ def differences_section(config: Configuration, baseline: Configuration, episodes
                      "d = difference / sqrt((SD_a^2 + SD_b^2) / 2), n: the seeds of each, and the seeds per "
                      "configuration a two-sided two-sample t-test (alpha 0.05) needs to detect d with 80% power.")
     effect = "d_z" if paired else "d"
+    holm_column = ["p (Holm)"] if family else []
     lines += ["", *table(["outcome", "episodes", "difference [95% interval]", "p", effect, "n seeds",
-                          "seeds for 80% power"], rows), ""]
+                          "seeds for 80% power", *holm_column], rows), ""]
+    if family:
+        lines += [f"p (Holm): Holm-Bonferroni over the {len(family)} outcomes named by --holm "
+                  f"({'; '.join(f'{heading}, {kind}' for kind, heading in family)}).", ""]
     return "\n".join(lines)
 
 
-def difference_rows(config: Configuration, baseline: Configuration) -> list[dict[str, Any]]:
+def difference_rows(config: Configuration, baseline: Configuration, family: HolmFamily = ()) -> list[dict[str, Any]]:
     """comparison.csv's rows of ``config`` against ``baseline``: every outcome of every kind."""
     rows = []
-    for _, _, (kind, name), d in differences(config, baseline):
+    for _, _, (kind, name), d in differences(config, baseline, family):
         rows.append({**csv_head(config.label, config.config), "statistic": f"{d.test} difference", "episodes": kind,
                      "metric": name, "baseline": baseline.label, "n": d.n, "n_baseline": d.n_baseline,
                      "mean": d.mean, "ci_low": d.low, "ci_high": d.high, "p": d.p,
                      "p_method": ("Welch t-test" if d.test == "Welch" else
                                   "exact sign-flip" if d.p_exact else "random sign-flip"),
-                     "effect_size": d.effect, "seeds_for_80_power": d.seeds_for_power,
+                     "effect_size": d.effect, "seeds_for_80_power": d.seeds_for_power, "p_holm": d.p_holm,
                      "seeds": d.seeds, "values": d.differences})
     return rows
 
@@ -416,8 +464,8 @@ def curve_legend(configurations: list[Configuration]) -> str:
     return "".join(words for section_name, words in CURVE_LEGEND.items() if section_name in sections)
 
 
-def _table(runs: list[Run], episodes: str = "held-out", baseline: dict[str, str] | None = None
-           ) -> tuple[list[dict[str, Any]], str]:
+def _table(runs: list[Run], episodes: str = "held-out", baseline: dict[str, str] | None = None,
+           family: HolmFamily = ()) -> tuple[list[dict[str, Any]], str]:
     found = configurations(runs)
     baselines = choose_baselines(found, baseline)
     rows: list[dict[str, Any]] = []
@@ -425,8 +473,8 @@ def _table(runs: list[Run], episodes: str = "held-out", baseline: dict[str, str]
     for c, b in zip(found, baselines):
         rows += csv_rows(c.label, c.config, c.found)
         if b is not None:
-            rows += difference_rows(c, found[b])
-            compared.append(differences_section(c, found[b], episodes))
+            rows += difference_rows(c, found[b], family)
+            compared.append(differences_section(c, found[b], episodes, family))
         overview.append(overview_row(c.label, c.n, c.found, episodes))
         seeds = ", ".join(f"{r.seed}{'' if r.finished else ' (unfinished)'}" for r in c.runs)
         sections.append(section(f"## {c.label}", f"{len(c.runs)} seed(s): {seeds}", c.found, episodes))
@@ -446,6 +494,7 @@ def _table(runs: list[Run], episodes: str = "held-out", baseline: dict[str, str]
               "fixed held-out episodes), selection-time (the top individual on the training episodes it was "
               "selected on) or training (the population's best; an ES centre).", "",
               *table(["configuration", "n seeds", *OVERVIEW], overview), "", *paper_tables(found, episodes), *against]
+    _check_family(family, found, baselines)
     return rows, "\n".join(header + sections)
 
 
@@ -466,6 +515,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "algo=neat,reg=0 (default: for each configuration with a regulariser or a baseline setting, "
                              "fine-tuning: lambda 0 without rehearsal, joint or from scratch, of the same algorithm "
                              "and otherwise the same settings)")
+    parser.add_argument("--holm", action="append", default=None, metavar="KIND:OUTCOME",
+                        help="an outcome of a family tested together (a study's secondary outcomes), as the "
+                             "differences tables name it with its episodes, e.g. 'held-out:green C_top'; repeated, "
+                             "one per outcome: the tables add its Holm-Bonferroni p over the family")
     parser.add_argument("--episodes", choices=EPISODES_CHOICES, default="held-out",
                         help="the deployed controllers' figures in the tables: held-out (the default: where the "
                              "runs have summary.json's held_out block, else the selection-time ones), training "
@@ -482,11 +535,12 @@ class Comparison:
     model_specific_json: list[dict[str, Any]]
 
 
-def comparison(paths, episodes: str = "held-out", baseline: dict[str, str] | None = None) -> Comparison:
+def comparison(paths, episodes: str = "held-out", baseline: dict[str, str] | None = None,
+               family: HolmFamily = ()) -> Comparison:
     """``compare_table`` of the runs at or under ``paths`` plus, where a configuration ran several
     lambdas, the model-specific lambda rows."""
     runs = load_runs(paths, with_metrics=False)
-    rows, markdown = _table(runs, episodes, baseline)
+    rows, markdown = _table(runs, episodes, baseline, family)
     names = [run.path.name for run in runs]
     tags = names if len(set(names)) == len(names) else [str(run.path) for run in runs]
     configs = [run.config for run in runs]
@@ -523,7 +577,8 @@ def write_comparison(paths, out: Path, episodes: str = "held-out", baseline: dic
 
 def main(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else default_out(args.paths)
-    report = comparison(args.paths, args.episodes, parse_baseline(args.baseline))  # a bad --baseline writes nothing
+    # a bad --baseline or --holm writes nothing
+    report = comparison(args.paths, args.episodes, parse_baseline(args.baseline), parse_holm(args.holm))
     figures = overlay_figures(args.paths, out)  # reads every metrics.csv before it writes: a bad one writes nothing
     markdown = write_report(report, out)
     print(markdown)

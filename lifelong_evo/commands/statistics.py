@@ -31,6 +31,11 @@ of the two-sided t-test is P(T' > c) + P(T' < -c), T' noncentral t(df, delta)
 df = 2n - 2, delta = d sqrt(n / 2). The seeds needed is the smallest n >= 2 with power >= 80%:
 ``math.inf`` where the effect is 0 (no number of seeds detects it) or needs more than
 ``MAX_SEEDS``, None where the effect size is undefined (fewer than two values, or no spread).
+
+**Holm-Bonferroni** (``holm``), for a family of m outcomes tested together (a study's secondary
+outcomes): with the p-values sorted, p_(1) <= ... <= p_(m), the adjusted p_(i) is the largest of
+min(1, (m - j + 1) p_(j)) over j <= i; an outcome is detected at level alpha where its adjusted p
+is below alpha, which holds the chance of any false detection in the family at alpha.
 """
 from __future__ import annotations
 
@@ -110,6 +115,8 @@ class Difference:
     seeds: tuple[Any, ...] = ()
     differences: tuple[float, ...] = ()
     """Paired: the seeds both ran, ascending, and the difference of each."""
+    p_holm: float | None = None
+    """``p`` adjusted by Holm-Bonferroni over the family it was tested in (``holm``), if any."""
 
 
 def sign_flip_p(differences: Iterable[float]) -> tuple[float, bool]:
@@ -217,3 +224,15 @@ def difference(values: Mapping[Any, float], baseline: Mapping[Any, float], paira
     if pairable and len(set(values) & set(baseline)) >= 2:
         return paired_difference(values, baseline)
     return welch_difference(values.values(), baseline.values())
+
+
+def holm(p_values: Iterable[float]) -> list[float]:
+    """Holm-Bonferroni adjusted p-values, in the order given (see the module docstring)."""
+    given = list(p_values)
+    order = sorted(range(len(given)), key=lambda i: given[i])
+    adjusted = [0.0] * len(given)
+    running = 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (len(given) - rank) * given[i]))
+        adjusted[i] = running
+    return adjusted

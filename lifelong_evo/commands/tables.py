@@ -47,7 +47,7 @@ TRAINING_KIND = {"top": SELECTION_TIME, "centre": TRAINING}
 
 
 CSV_COLUMNS = ["configuration", "algo", "reg", "schedule", "statistic", "episodes", "metric", "baseline", "n",
-               "n_baseline", "mean", "ci_low", "ci_high", "p", "p_method", "effect_size", "seeds_for_80_power",
+               "n_baseline", "mean", "ci_low", "ci_high", "p", "p_method", "effect_size", "seeds_for_80_power", "p_holm",
                "seeds", "values"]
 
 
