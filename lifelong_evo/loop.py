@@ -359,10 +359,10 @@ def _first_task_of(source: RunDir, config: RunConfig) -> dict[str, Any]:
     start from it: the two differ in nothing that changes a number but lambda, which no optimiser
     uses before its first reference (taken at that task end, whatever lambda is); ResumeError,
     before anything is written, otherwise."""
-    different = [difference for difference in source.setting_differences(config.to_dict())
-                 if not difference.startswith("--reg ")]
+    different = source.first_task_differences(config.to_dict())
     if different:
         raise ResumeError(f"--start-from {source.path}: that run differs from this one in more than lambda "
+                          "and rehearsal "
                           f"({'; '.join(different)}), so its first task is not this run's: start this run "
                           "without --start-from")
     path = source.first_task_end

@@ -43,6 +43,7 @@ from . import checkpoint
 from .checkpoint import atomic_write_bytes
 from .config import RunConfig
 from .errors import UserError
+from .options import flag
 from .metrics import GenerationRecord, retention_column
 from .schedule import parse_schedule
 
@@ -329,6 +330,13 @@ class RunDir:
                 differences.append(f"--{name.replace('_', '-')} {value!r} (stored: {getattr(stored, name)!r})")
         return differences
 
+    def first_task_differences(self, stated: dict[str, Any]) -> list[str]:
+        """``setting_differences`` that would make a run of ``stated`` differ from this one before
+        the first task's end: all but ``RunConfig.AFTER_FIRST_TASK_SETTINGS``. None: the two share
+        their first task (``--start-from``)."""
+        after = tuple(f"{flag(name)} " for name in RunConfig.AFTER_FIRST_TASK_SETTINGS)
+        return [difference for difference in self.setting_differences(stated) if not difference.startswith(after)]
+
     def continuation(self, stated: dict[str, Any]) -> RunConfig:
         """The configuration to continue this run with: the one it was created with, and the output
         settings ``stated`` gives (``RunConfig.OUTPUT_SETTINGS``: they change no number). Any other
@@ -395,7 +403,7 @@ class RunDir:
     @property
     def first_task_end(self) -> Path:
         """A copy of the checkpoint at the first task's end, kept for runs that share the first
-        task (``--start-from``): they differ only in lambda, which acts only after it."""
+        task (``--start-from``): they differ only in ``RunConfig.AFTER_FIRST_TASK_SETTINGS``."""
         return self.checkpoints / "first-task-end.pt"
 
     def save_first_task_end(self, payload: dict[str, Any]) -> None:

@@ -48,6 +48,21 @@ def test_a_run_started_from_another_lambda_gives_its_own_numbers(tmp_path, algo)
     assert metrics[0][:4] == metrics[1][:4] and metrics[0][4:] != metrics[1][4:]
 
 
+@pytest.mark.parametrize("algo", ["neat", "sep-cmaes"])
+def test_a_rehearsal_run_started_from_fine_tuning_gives_its_own_numbers(tmp_path, algo):
+    """Rehearsal has no earlier task to rehearse before the first task's end: a rehearsal run (with
+    a regulariser too) takes over a fine-tuning run's first task and repeats its numbers from scratch."""
+    def run(*argv):
+        assert main(["--algo", algo, *COMMON, "--out", str(tmp_path), *argv]) == 0
+
+    run("--name", "source")
+    run("--rehearsal", "0.5", "--reg", "2", "--name", "alone")
+    run("--rehearsal", "0.5", "--reg", "2", "--name", "started", "--start-from", str(tmp_path / "source"))
+    alone, started = _files(tmp_path / "alone"), _files(tmp_path / "started")
+    assert json.loads(alone.pop("config.json")) == json.loads(started.pop("config.json"))
+    assert alone == started
+
+
 def test_start_from_refuses_a_run_that_differs_in_more_than_lambda(tmp_path, capsys):
     assert main(["--algo", "neat", *COMMON, "--out", str(tmp_path), "--name", "source"]) == 0
     capsys.readouterr()

@@ -128,13 +128,13 @@ def trial_run(config_values: dict[str, Any], path: str, overwrite: bool,
 
 def first_task_source(config: RunConfig, candidates: Sequence[str]) -> RunDir | None:
     """The first of the run directories ``candidates`` whose first task a run of ``config`` may
-    take over (``run --start-from``): it has reached that task's end and differs only in lambda.
+    take over (``run --start-from``): it has reached that task's end and differs only in settings
+    that act after it (``RunDir.first_task_differences``).
     Looked up when the trial starts, so a source that ended its first task meanwhile counts."""
     for candidate in map(RunDir, candidates):
         if candidate.first_task_end.is_file():
             try:
-                if all(difference.startswith("--reg ") for difference in
-                       candidate.setting_differences(config.to_dict())):
+                if not candidate.first_task_differences(config.to_dict()):
                     return candidate
             except (RunDirError, ConfigError):  # not (yet) a run directory with a readable config.json
                 continue
@@ -142,14 +142,17 @@ def first_task_source(config: RunConfig, candidates: Sequence[str]) -> RunDir | 
 
 
 def first_task_order(trials: list[Trial]) -> list[Trial]:
-    """``trials`` with the ones that share a first task together, lambda 0 first, in order of
-    first appearance: each regularised trial then runs right after the run it starts from."""
+    """``trials`` with the ones that share a first task together, fine-tuning (lambda 0, no
+    rehearsal) first, in order of first appearance: each other trial then runs right after the
+    run it starts from."""
     groups: dict[str, list[Trial]] = {}
     for trial in trials:
         settings = RunConfig.outcome_settings(trial.config.to_dict())
-        settings.pop("reg")
+        for name in RunConfig.AFTER_FIRST_TASK_SETTINGS:
+            settings.pop(name)
         groups.setdefault(json.dumps(settings, sort_keys=True), []).append(trial)
-    return [trial for group in groups.values() for trial in sorted(group, key=lambda t: t.config.reg != 0)]
+    return [trial for group in groups.values()
+            for trial in sorted(group, key=lambda t: bool(t.config.reg or t.config.rehearsal))]
 
 
 def run_trial(config_values: dict[str, Any], path: str, overwrite: bool, memory_check: bool = True,
