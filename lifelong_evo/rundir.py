@@ -43,8 +43,8 @@ from . import checkpoint
 from .checkpoint import atomic_write_bytes
 from .config import RunConfig
 from .errors import UserError
-from .options import flag
 from .metrics import GenerationRecord, retention_column
+from .options import flag
 from .schedule import parse_schedule
 
 RESOLVED = (("env", "env_resolved"), ("algo_options", "algo_options_resolved"))
