@@ -90,10 +90,11 @@ class RunConfig:
     """How a run is computed: they change at most the rounding of its numbers, so runs that differ
     only in them (and in the seed) are one configuration; a resumed run keeps them."""
     OUTPUT_SETTINGS: ClassVar[tuple[str, ...]] = ("record", "episodes_every", "gap_window")
-    AFTER_FIRST_TASK_SETTINGS: ClassVar[tuple[str, ...]] = ("reg", "rehearsal")
-    """Settings that act only after the first task's end (the regulariser takes its first reference
-    there; rehearsal has no earlier task before it): runs that differ only in them share their
-    first task, number for number (``--start-from``, ``sweep --share-first-task``)."""
+    AFTER_FIRST_TASK_SETTINGS: ClassVar[tuple[str, ...]] = ("reg", "rehearsal", "from_scratch")
+    """Settings that act only at or after the first task's end (the regulariser takes its first
+    reference there; rehearsal has no earlier task before it; from scratch starts afresh there):
+    runs that differ only in them share their first task, number for number (``--start-from``,
+    ``sweep --share-first-task``; the run that takes it over does at its end what it does)."""
     """What a run records besides its numbers, which they never change: a resumed run may change them."""
 
     @classmethod

@@ -156,6 +156,9 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
         run_dir.write_config(config)
         if source is not None:
             state = _take_first_task(config, run_dir, start_from, source, optimizer, generator)
+            if config.from_scratch and len(phases) > 1:  # what this run does at that end: start afresh
+                optimizer = _make_optimizer(config, env_config, scratch_seed(config.seed, 1))
+                run_dir.save_checkpoint(state.generation, _checkpoint_payload(config, optimizer, generator, state))
     layout = MetricsLayout(tuple(t.name for t in tasks), species=config.algo == "neat", centre=centre is not None,
                            diagnostics=optimizer.diagnostics)
     log = GenerationLog(run_dir, layout, resumed_at=state.generation if resume or start_from else None)
@@ -246,19 +249,21 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
             # the regulariser's reference: at each task end, or boundary-free every reference_every generations
             if (generation + 1) % config.reference_every == 0 if config.reference_every else last:
                 optimizer.end_task()
-            if last and config.from_scratch and phase_index + 1 < len(phases):
-                optimizer = _make_optimizer(config, env_config, scratch_seed(config.seed, phase_index + 1))
-
             state.generation = generation + 1
             state.wall_time_s = time.monotonic() - started
+            # kept for runs that share this first task (start_from): its end as every run reaches it,
+            # before what a baseline does there (from scratch: start afresh)
+            first_task_end = _checkpoint_payload(config, optimizer, generator, state) if last and not phase_index else None
+            if last and config.from_scratch and phase_index + 1 < len(phases):
+                optimizer = _make_optimizer(config, env_config, scratch_seed(config.seed, phase_index + 1))
             display.update(generation, phase.name, phase_index + 1, len(phases), record.fitness.best,
                            {name: kept.pop for name, kept in record.retention.items()}, task_end=last)
             # after the task end: a run resumed from this checkpoint has the task's reference
             if last or state.generation % config.checkpoint_every == 0:
                 payload = _checkpoint_payload(config, optimizer, generator, state)
                 run_dir.save_checkpoint(state.generation, payload)
-                if last and phase_index == 0:  # kept for runs that share this first task (start_from)
-                    run_dir.save_first_task_end(payload)
+                if first_task_end is not None:
+                    run_dir.save_first_task_end(first_task_end)
                 run_dir.write_summary(summary_now())
         summary = summary_now()
         run_dir.write_summary(summary)
@@ -361,8 +366,8 @@ def _first_task_of(source: RunDir, config: RunConfig) -> dict[str, Any]:
     before anything is written, otherwise."""
     different = source.first_task_differences(config.to_dict())
     if different:
-        raise ResumeError(f"--start-from {source.path}: that run differs from this one in more than lambda "
-                          "and rehearsal "
+        raise ResumeError(f"--start-from {source.path}: that run differs from this one in more than lambda, "
+                          "rehearsal and from scratch "
                           f"({'; '.join(different)}), so its first task is not this run's: start this run "
                           "without --start-from")
     path = source.first_task_end

@@ -49,15 +49,18 @@ def test_a_run_started_from_another_lambda_gives_its_own_numbers(tmp_path, algo)
 
 
 @pytest.mark.parametrize("algo", ["neat", "sep-cmaes"])
-def test_a_rehearsal_run_started_from_fine_tuning_gives_its_own_numbers(tmp_path, algo):
-    """Rehearsal has no earlier task to rehearse before the first task's end: a rehearsal run (with
-    a regulariser too) takes over a fine-tuning run's first task and repeats its numbers from scratch."""
+@pytest.mark.parametrize("source, baseline", [([], ["--rehearsal", "0.5", "--reg", "2"]), ([], ["--from-scratch"]),
+                                              (["--from-scratch"], ["--reg", "2"])])
+def test_a_baseline_run_started_from_another_gives_its_own_numbers(tmp_path, algo, source, baseline):
+    """Rehearsal has nothing to rehearse before the first task's end and from scratch starts afresh
+    at it: such a run takes over another's first task (a from-scratch source keeps that end as it
+    was reached, before starting afresh) and repeats its numbers from scratch, resumed included."""
     def run(*argv):
         assert main(["--algo", algo, *COMMON, "--out", str(tmp_path), *argv]) == 0
 
-    run("--name", "source")
-    run("--rehearsal", "0.5", "--reg", "2", "--name", "alone")
-    run("--rehearsal", "0.5", "--reg", "2", "--name", "started", "--start-from", str(tmp_path / "source"))
+    run(*source, "--name", "source")
+    run(*baseline, "--name", "alone")
+    run(*baseline, "--name", "started", "--start-from", str(tmp_path / "source"))
     alone, started = _files(tmp_path / "alone"), _files(tmp_path / "started")
     assert json.loads(alone.pop("config.json")) == json.loads(started.pop("config.json"))
     assert alone == started
@@ -79,3 +82,28 @@ def test_start_from_refuses_a_run_that_differs_in_more_than_lambda(tmp_path, cap
                  str(tmp_path / "source")]) == 2
     assert "keeps no checkpoint of its first task" in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize("algo", ["neat", "sep-cmaes"])
+def test_a_from_scratch_run_stopped_right_after_taking_over_a_first_task_resumes_to_its_numbers(tmp_path, algo):
+    """The checkpoint written when a from-scratch run takes over another's first task holds the
+    fresh optimiser it goes on with: resumed from it, the run repeats its numbers from scratch."""
+    from lifelong_evo import loop
+    from lifelong_evo.commands.flags import resolve_run_config
+    from lifelong_evo.commands.cli import build_parser
+    from lifelong_evo.rundir import RunDir
+
+    def run(*argv):
+        assert main(["--algo", algo, *COMMON, "--out", str(tmp_path), *argv]) == 0
+
+    run("--name", "source")
+    run("--from-scratch", "--name", "alone")
+    config = resolve_run_config(build_parser().parse_args(["run", "--algo", algo, *COMMON, "--from-scratch"]))
+    steps = loop.lifelong(config, RunDir(tmp_path / "stopped"), progress="off", start_from=RunDir(tmp_path / "source"))
+    next(steps)  # the first task taken over, the next one's first evaluation asked for: stop here
+    steps.close()
+    assert [p.name for p in sorted((tmp_path / "stopped/checkpoints").glob("generation-*"))] == ["generation-000003.pt"]
+    run("--from-scratch", "--name", "stopped", "--resume")
+    alone, resumed = _files(tmp_path / "alone"), _files(tmp_path / "stopped")
+    assert json.loads(alone.pop("config.json")) == json.loads(resumed.pop("config.json"))
+    assert alone == resumed

@@ -142,8 +142,8 @@ def first_task_source(config: RunConfig, candidates: Sequence[str]) -> RunDir | 
 
 
 def first_task_order(trials: list[Trial]) -> list[Trial]:
-    """``trials`` with the ones that share a first task together, fine-tuning (lambda 0, no
-    rehearsal) first, in order of first appearance: each other trial then runs right after the
+    """``trials`` with the ones that share a first task together, fine-tuning (none of
+    ``RunConfig.AFTER_FIRST_TASK_SETTINGS``) first, in order of first appearance: each other trial then runs right after the
     run it starts from."""
     groups: dict[str, list[Trial]] = {}
     for trial in trials:
@@ -151,8 +151,8 @@ def first_task_order(trials: list[Trial]) -> list[Trial]:
         for name in RunConfig.AFTER_FIRST_TASK_SETTINGS:
             settings.pop(name)
         groups.setdefault(json.dumps(settings, sort_keys=True), []).append(trial)
-    return [trial for group in groups.values()
-            for trial in sorted(group, key=lambda t: bool(t.config.reg or t.config.rehearsal))]
+    return [trial for group in groups.values() for trial in sorted(
+        group, key=lambda t: any(getattr(t.config, name) for name in RunConfig.AFTER_FIRST_TASK_SETTINGS))]
 
 
 def run_trial(config_values: dict[str, Any], path: str, overwrite: bool, memory_check: bool = True,
