@@ -37,6 +37,20 @@ def make_optimizer(name: str, *, obs_dim: int, population_size: int, seed: int,
                reg=reg, device=device, **options)
 
 
+def controller_size(exported: dict) -> dict[str, int]:
+    """What an exported controller is made of, to set families side by side: an MLP's
+    ``parameters`` (weights and biases); a NEAT genome's ``nodes`` (hidden and output) and its
+    enabled ``connections``."""
+    if exported.get("format") == "neat-python-genome":
+        genome = exported["genome"]
+        return {"nodes": len(genome["nodes"]),
+                "connections": sum(bool(c["enabled"]) for c in genome["connections"])}
+    if "layer_sizes" in exported:
+        sizes = exported["layer_sizes"]
+        return {"parameters": sum((a + 1) * b for a, b in zip(sizes[:-1], sizes[1:]))}
+    raise ValueError("not an exported controller: expected a NEAT genome or an MLP (layer_sizes, parameters)")
+
+
 def policy_from_export(exported: dict, device: str = "cpu") -> BatchedPolicy:
     """A one-controller policy from what ``Optimizer.export`` wrote (NEAT genome or MLP)."""
     if exported.get("format") == "neat-python-genome":
@@ -51,5 +65,5 @@ def policy_from_export(exported: dict, device: str = "cpu") -> BatchedPolicy:
 
 
 __all__ = ["CMAES", "PGPE", "REGISTRY", "SNES", "BatchedPolicy", "ESOptimizer", "GenerationReport", "NeatOptimizer",
-           "OpenAIES", "Optimizer", "OptimizerOptions", "SepCMAES", "UnknownAlgorithmError", "make_optimizer",
-           "policy_from_export"]
+           "OpenAIES", "Optimizer", "OptimizerOptions", "SepCMAES", "UnknownAlgorithmError", "controller_size",
+           "make_optimizer", "policy_from_export"]

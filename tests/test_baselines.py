@@ -272,3 +272,36 @@ def test_the_figures_draw_a_mixed_runs_own_current_curve(tmp_path):
     _, drawn = stack_current([run])
     assert list(drawn[0]) == [float(rows[0]["best"]), float(rows[1]["best"]), *own]
     assert own != [float(row["best"]) for row in rows[2:]], "the mixture's best must differ for the test to bite"
+
+
+# -- the families side by side: controller sizes and evaluation budget -------------------------
+
+
+def test_controller_size_counts_what_a_controller_is_made_of():
+    from algorithms import controller_size
+
+    assert controller_size({"layer_sizes": [41, 16, 3], "parameters": []}) == {"parameters": 42 * 16 + 17 * 3}
+    genome = {"nodes": [{"key": 0}, {"key": 1}, {"key": 2}, {"key": 7}],
+              "connections": [{"enabled": True}, {"enabled": False}, {"enabled": True}]}
+    assert controller_size({"format": "neat-python-genome", "genome": genome}) == {"nodes": 4, "connections": 2}
+    with pytest.raises(ValueError):
+        controller_size({"weights": []})
+
+
+def test_compare_sets_sizes_and_budgets_side_by_side(tmp_path):
+    from lifelong_evo.commands.compare import compare_table
+
+    root = tmp_path / "runs"
+    for algo in ("neat", "sep-cmaes"):
+        for seed in (1, 2):
+            _run(root, f"{algo}-{seed}", algo=algo, seed=seed, schedule="red:2,green:2")
+    rows, markdown = compare_table([root])
+    sizes = {(r["configuration"].split()[0], r["metric"]): r["mean"] for r in rows
+             if r["statistic"] == "mean" and r["episodes"] == ""}
+    assert sizes[("sep-cmaes", "evaluations per generation")] == 21 * 2  # 20 samples and the centre, N = 2
+    assert sizes[("neat", "evaluations per generation")] == 20 * 2
+    assert sizes[("sep-cmaes", "parameters of the top at end of phase 1 (green)")] == 42 * 16 + 17 * 3
+    neat = [json.loads((root / f"neat-{seed}/controllers/task1-green-top.json").read_text()) for seed in (1, 2)]
+    connections = [sum(c["enabled"] for c in g["genome"]["connections"]) for g in neat]
+    assert sizes[("neat", "connections of the top at end of phase 1 (green)")] == pytest.approx(sum(connections) / 2)
+    assert markdown.count("Controllers and budget") == 2

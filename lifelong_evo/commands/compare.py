@@ -80,9 +80,12 @@ from typing import Any
 
 from ..checkpoint import atomic_write_bytes
 from ..errors import UserError
-from ..metrics import forward_transfer_area
+from algorithms import controller_size
+
+from ..metrics import controller_key, forward_transfer_area
 from ..rundir import (
     Run,
+    RunDir,
     config_key,
     configuration_of,
     describe_config,
@@ -102,6 +105,7 @@ from .tables import (
     HELD_OUT,
     OVERVIEW,
     SELECTION_TIME,
+    SIZE,
     STABILITY_GAP,
     TRAINING,
     TRAINING_KIND,
@@ -112,6 +116,7 @@ from .tables import (
     csv_rows,
     curve_outcomes,
     ft_area_name,
+    size_name,
     group_estimates,
     is_nan,
     outcomes,
@@ -439,16 +444,40 @@ def forward_transfer_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
     return figures
 
 
+def size_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
+    """Per run, what its controllers are made of and what a generation costs, so that no difference
+    between families is read as the optimiser's that belongs to the representation: for the top
+    controller exported at each task end, ``algorithms.controller_size`` (a NEAT genome's nodes and
+    enabled connections, changing as it evolves; an MLP's parameters, fixed), and the evaluations
+    per generation (controllers, an ES centre included, times training episodes)."""
+    figures: dict[Path, list[Figure]] = {}
+    for run in runs:
+        found: list[Figure] = []
+        controllers = RunDir(run.path).read_controllers()
+        for i, task in enumerate(run.summary.get("phases", [])):
+            exported = controllers.get(controller_key(i, task, "top"))
+            if exported is not None:
+                found += [(SIZE, ("", size_name(what, i, task)), n) for what, n in controller_size(exported).items()]
+        population = run.config.get("population")
+        if population is not None and "current" in run.summary:
+            controllers_scored = int(population) + ("centre_current" in run.summary)
+            found.append((SIZE, ("", size_name("evaluations per generation")),
+                          controllers_scored * int(run.config.get("evals", 0))))
+        figures[run.path] = found
+    return figures
+
+
 def configurations(runs: list[Run]) -> list[Configuration]:
     """The runs' configurations, in table order, with their estimates (the forward transfer areas
     included: ``forward_transfer_figures``)."""
     # each group by seed (numerically), so nothing below depends on the order the runs came in
     groups = [sorted(g, key=lambda r: (seed_order(r.seed), str(r.path))) for g in sorted_groups(group_runs(runs))]
     configs = [g[0].config for g in groups]
-    transfer = forward_transfer_figures(runs)
+    transfer, sizes = forward_transfer_figures(runs), size_figures(runs)
+    extra = {path: [*transfer.get(path, []), *sizes.get(path, [])] for path in {*transfer, *sizes}}
     return [Configuration(describe_config(config, configs), config, group,
                           [p.name for p in parse_schedule(str(config.get("schedule")), int(config.get("generations", 0)))],
-                          group_estimates(group, transfer), seed_count(group))
+                          group_estimates(group, extra), seed_count(group))
             for group, config in zip(groups, configs)]
 
 

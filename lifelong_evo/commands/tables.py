@@ -101,6 +101,8 @@ Figure = tuple[str, Key, float | None]
 
 
 STABILITY_GAP, FT_AREA = "stability gap", "forward transfer area"
+SIZE = "size"
+"""The section of a run's controller sizes and evaluation budget (``compare.size_figures``)."""
 CURVE_SECTIONS = (STABILITY_GAP, FT_AREA)
 """The sections of the figures read off per-generation curves (the module docstring)."""
 
@@ -255,7 +257,24 @@ def section(heading: str, intro: str, found: Estimates, episodes: str) -> str:
         lines += table(["controller (episodes)", "ACC", "BWT", "FWT"], rows)
         lines.append("")
     lines += _curve_tables(found)
+    lines += _size_table(found)
     return "\n".join(lines)
+
+
+def size_name(what: str, phase: int | None = None, task: str | None = None) -> str:
+    """The metric name of a size: ``connections of the top at end of phase 1 (green)``, or of the
+    run as a whole (``evaluations per generation``)."""
+    return what if phase is None else f"{what} of the top at end of phase {phase} ({task})"
+
+
+def _size_table(found: Estimates) -> list[str]:
+    """The controllers' sizes and the evaluation budget of ``found``, where it has them."""
+    rows = [[name, str(estimate)] for (_, name), (sec, estimate) in found.items() if sec == SIZE]
+    if not rows:
+        return []
+    return ["Controllers and budget: the exported top controllers' size (a NEAT genome's hidden and output "
+            "nodes and enabled connections; an MLP's parameters) and the controllers times training episodes "
+            "each generation.", "", *table(["what", "value"], rows), ""]
 
 
 def _curve_tables(found: Estimates) -> list[str]:
