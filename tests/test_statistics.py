@@ -415,3 +415,34 @@ def test_a_bad_holm_family_is_refused_before_anything_is_written(tmp_path, capsy
     err = capsys.readouterr().err
     assert err.startswith("error: --holm") and says in err and err.count("\n") == 1
     assert not (tmp_path / "cmp").exists()
+
+
+def test_the_optimism_of_a_lambda_chosen_per_seed_worked_by_hand():
+    """Criterion (C_top green + R_top red) on training / held-out episodes: seed 1, lambda 0 30 / 26
+    and lambda 11 28 / 27; seed 2, lambda 0 25 / 24 and lambda 11 29 / 22. Chosen: lambda 0 at seed
+    1, 11 at seed 2: 29.5 selection-time, 24.0 held-out, differences 4 and 7; lambda 0 on every
+    seed: 4 and 1; lambda 11: 1 and 7."""
+    from lifelong_evo.commands.model_specific import optimism_rows, select_model_specific
+    from lifelong_evo.commands.tables import Estimate
+
+    def summary(train: float, held: float) -> dict:
+        part = lambda score: {"phases": ["red", "green", "red"], "current_top": [0.0, score - 5.0, 0.0],  # noqa: E731
+                              "forgetting": [{"at_end_of": 1, "task": "red", "R_top": 5.0}]}
+        return {**part(train), "held_out": part(held)}
+
+    figures = {(1, 0.0): (30.0, 26.0), (1, 11.0): (28.0, 27.0), (2, 0.0): (25.0, 24.0), (2, 11.0): (29.0, 22.0)}
+    summaries = {f"s{seed}-l{reg:g}": summary(*values) for (seed, reg), values in figures.items()}
+    runs = [({"algo": "neat", "reg": reg, "seed": seed}, summaries[f"s{seed}-l{reg:g}"], f"s{seed}-l{reg:g}")
+            for seed, reg in figures]
+    (selection,) = select_model_specific(runs)
+    assert [(c["seed"], c["reg"]) for c in selection["choices"]] == [(1, 0.0), (2, 11.0)]
+    rows = optimism_rows(selection, summaries)
+
+    def est(values):
+        return str(Estimate.of(values, [1, 2]))
+
+    assert rows == [["chosen per seed", "2", est([30.0, 29.0]), est([26.0, 22.0]), est([4.0, 7.0])],
+                    ["lambda 0, every seed", "2", est([30.0, 25.0]), est([26.0, 24.0]), est([4.0, 1.0])],
+                    ["lambda 11, every seed", "2", est([28.0, 29.0]), est([27.0, 22.0]), est([1.0, 7.0])]]
+    del summaries["s2-l11"]["held_out"]  # a run without held-out scores: nothing to measure
+    assert optimism_rows(selection, summaries) == []

@@ -6,7 +6,9 @@ smaller lambda), chosen on the selection-time figures (the training episodes) an
 configuration of its own with the chosen lambda per seed, its tables held-out where the chosen
 runs have the block; beside it the one lambda for all seeds, the highest mean of the same
 criterion over the seeds (``select_model_specific``, ``model_specific_report``). A lambda chosen
-per seed on the seed it is reported on is optimistic: the report says so.
+per seed on the seed it is reported on is optimistic: the report says so, and by how much where
+the runs have held-out scores (``optimism_rows``: the criterion on the training episodes minus the
+same criterion held-out, for the chosen runs and, as the reference, for each lambda on every seed).
 """
 from __future__ import annotations
 
@@ -33,6 +35,37 @@ def selection_score(summary: dict[str, Any]) -> float | None:
     return float(current[1]) + float(rows[0]["R_top"])
 
 
+def held_out_selection_score(summary: dict[str, Any]) -> float | None:
+    """``selection_score`` on the held-out episodes (the held-out block's top-controller figures);
+    None where the run has no such figures."""
+    held = summary.get("held_out") or {}
+    return selection_score({"phases": held.get("phases"), "current_top": held.get("current_top"),
+                            "forgetting": held.get("forgetting", [])})
+
+
+def optimism_rows(selection: dict[str, Any], summaries: dict[Any, dict[str, Any]]) -> list[list[str]]:
+    """How optimistic the per-seed choice is: for the chosen runs and for each lambda run on every
+    seed, the criterion's mean on the training episodes (selection-time), held-out, and the mean of
+    the per-seed differences with its t-interval. The chosen runs' difference holds the selection
+    bias every lambda has plus what choosing on the evaluated seed adds. Empty without held-out scores."""
+    def row(label: str, picks: list[tuple[Any, float, Any]]) -> list[str] | None:
+        pairs = [(seed, score, held_out_selection_score(summaries[tag])) for seed, score, tag in picks]
+        if not pairs or any(held is None for _, _, held in pairs):
+            return None
+        seeds = [seed for seed, _, _ in pairs]
+        return [label, str(len(pairs)), str(Estimate.of([s for _, s, _ in pairs], seeds)),
+                str(Estimate.of([h for _, _, h in pairs], seeds)), str(Estimate.of([s - h for _, s, h in pairs], seeds))]
+
+    chosen = row("chosen per seed", [(c["seed"], c["score"], c["tag"]) for c in selection["choices"]])
+    lambdas = sorted({reg for runs in selection["candidates"].values() for _, reg, _ in runs})
+    rows = [chosen] + [row(f"lambda {reg:g}, every seed", [(seed, score, tag) for seed, runs in
+                                                           sorted(selection["candidates"].items())
+                                                           for score, r, tag in runs if r == reg])
+                       for reg in lambdas if all(any(r == reg for _, r, _ in runs)
+                                                 for runs in selection["candidates"].values())]
+    return [r for r in rows if r is not None] if chosen is not None else []
+
+
 def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]) -> list[dict[str, Any]]:
     """The model-specific lambda: ``runs`` are (config.json dict, summary.json dict, tag) triples;
     for each configuration without lambda that was run with several lambdas, and each of its seeds,
@@ -45,7 +78,8 @@ def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]
     runs), ``choices``, one per seed in ascending order: ``seed``, ``reg``, ``score``, ``tag``, and
     ``shared``, the one lambda for every seed: among the lambdas every seed ran, the one whose
     mean ``selection_score`` over the seeds is highest (ties: the smaller lambda), with
-    ``means`` (lambda -> that mean); ``None`` where no lambda was run by every seed."""
+    ``means`` (lambda -> that mean); ``None`` where no lambda was run by every seed; and
+    ``candidates``: per seed, every run's (score, lambda, tag)."""
     def without_lambda(config: dict[str, Any]) -> str:
         rest = {k: v for k, v in configuration_of(config).items() if k != "reg"}
         return json.dumps(rest, sort_keys=True, default=str)
@@ -83,7 +117,8 @@ def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]
         if means:
             best = max(means, key=lambda reg: (means[reg], -reg))
             shared = {"reg": best, "means": means}
-        result.append({"config": group["config"], "choices": choices, "shared": shared})
+        result.append({"config": group["config"], "choices": choices, "shared": shared,
+                       "candidates": {seed: group["by_seed"][seed] for seed in sorted(group["by_seed"])}})
     return result
 
 
@@ -116,7 +151,15 @@ def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any,
         rows += csv_rows(label, config, found, reg="m.s. " + " ".join(f"{c['reg']:g}" for c in choices))
         overview.append([label, len(choices), lambdas, one, cell(found, (SELECTION_TIME, CRITERION)),
                          *overview_row(label, str(len(choices)), found, episodes)[2:]])
+        optimism = optimism_rows(selection, summaries)
         sections.append(section(f"### {label}", f"lambda per seed: {lambdas}", found, episodes))
+        if optimism:
+            sections.append("\n".join([
+                f"How optimistic the choice is: {CRITERION} on the training episodes it was chosen on "
+                "(selection-time) and on the held-out episodes, and the per-seed difference; beside it each "
+                "lambda run on every seed, whose difference is the selection bias any top individual has.", "",
+                *table(["runs", "n seeds", "selection-time", "held-out", "selection-time - held-out"], optimism),
+                ""]))
     markdown = "\n".join([
         "## Model-specific lambda (m.s. reg)", "",
         f"Per configuration and seed, the lambda of the sweep maximising {CRITERION} (the top individual's "
