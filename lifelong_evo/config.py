@@ -286,7 +286,13 @@ def resolve(preset: str = "paper", file_values: dict | None = None, overrides: d
             machine: bool = True) -> RunConfig:
     """Defaults < preset < TOML file < command-line flags; nested tables merge key by key; the
     result validated (``RunConfig.validate``, which ``machine`` is passed to)."""
-    return replace(RunConfig(), **merge_layers(preset, file_values, overrides)).validate(machine)
+    return configure(merge_layers(preset, file_values, overrides), machine)
+
+
+def configure(stated: dict[str, Any], machine: bool = True) -> RunConfig:
+    """The configuration of the settings a command states (``merge_layers``) over the defaults,
+    validated (``RunConfig.validate``, which ``machine`` is passed to)."""
+    return replace(RunConfig(), **stated).validate(machine)
 
 
 def merge_layers(preset: str = "paper", file_values: dict | None = None, overrides: dict | None = None) -> dict:

@@ -15,13 +15,13 @@ from algorithms import UnknownAlgorithmError
 from envs import ConfigError
 
 from .. import loop, memory
-from ..config import RunConfig, merge_layers
+from ..config import configure
 from ..errors import Parser, UserError, interrupted_status, terminating_as_interrupt
 from ..options import plain
 from ..progress import MODES
 from ..rundir import RunDir
 from . import compare, option_list, plots, replay, score, sweep, view
-from .flags import add_run_options, resolve_run_config, run_layers
+from .flags import add_run_options, stated_settings
 from .report import summary_table
 from .rerun_recorder import RerunRecorder
 
@@ -66,26 +66,20 @@ def resume_command(args: argparse.Namespace, name: str) -> str:
     return shlex.join(words)
 
 
-def _run_dir(args: argparse.Namespace, config: RunConfig | None = None) -> RunDir:
-    """``<--out>/<--name>``, the name by default from the settings (``config``, else the flags)."""
-    if args.name is not None:
-        return RunDir.inside(args.out, args.name)
-    name = (config or resolve_run_config(args)).default_name()
-    return RunDir.inside(args.out, name, "the run name from --algo, --schedule, --reg and --seed", fix="give --name")
-
-
 def _run(args: argparse.Namespace) -> int:
     if args.resume and args.overwrite:
         raise UserError("--resume continues a run directory and --overwrite deletes it: give one of them")
     if args.resume and args.start_from:
         raise UserError("--resume continues a run from its own checkpoint: drop --start-from")
+    stated = stated_settings(args)
+    # a new run's configuration; without --name it also names the run (the command that started a
+    # run, plus --resume, names the same directory)
+    config = None if args.resume and args.name is not None else configure(stated)
+    run_dir = RunDir.inside(args.out, args.name) if args.name is not None else RunDir.inside(
+        args.out, config.default_name(), "the run name from --algo, --schedule, --reg and --seed", fix="give --name")
     if args.resume:
-        # the command that started the run, plus --resume, names the same directory
-        run_dir = _run_dir(args)
-        config = run_dir.continuation(merge_layers(*run_layers(args)))
+        config = run_dir.continuation(stated)
     else:
-        config = resolve_run_config(args)
-        run_dir = _run_dir(args, config)
         run_dir.check_create(args.overwrite)  # the loop checks again, locked
     if args.memory_check:
         memory.check([config])

@@ -17,7 +17,7 @@ from dataclasses import fields
 
 from envs import ConfigError
 
-from ..config import PRESETS, RunConfig, load_toml, resolve
+from ..config import PRESETS, RunConfig, configure, load_toml, merge_layers
 from ..errors import UserError
 from ..options import expected, field_docs, flag, parse_value, plain, schema, show, unbounded
 from ..schedule import NAMED_SCHEDULES
@@ -129,6 +129,12 @@ def run_layers(args: argparse.Namespace) -> tuple[str, dict, dict]:
     return args.preset, file_values, overrides
 
 
+def stated_settings(args: argparse.Namespace) -> dict:
+    """The settings a command's preset, TOML file and flags state, without the defaults (``merge_layers``)."""
+    preset, file_values, overrides = run_layers(args)
+    return merge_layers(preset, file_values, overrides)
+
+
 def resolve_run_config(args: argparse.Namespace) -> RunConfig:
     """The validated RunConfig a command's flags, file and preset give."""
-    return resolve(*run_layers(args))
+    return configure(stated_settings(args))
