@@ -81,14 +81,36 @@ class RunDirInUseError(RunDirError):
                          "or choose another --name")
 
 
+NAME_MAX = 255
+"""The longest folder name, in bytes, that Linux's and macOS's file systems take."""
+
+
 def check_run_name(name: Any, what: str = "--name",
                    fix: str = "give a folder name, and --out for the folder it goes in") -> str:
-    """``name`` if it is one folder name (not empty, ``.`` or ``..``, without ``/``, ``\\`` or NUL),
-    so that the run directory it names lies directly inside ``--out``; RunDirError otherwise."""
+    """``name`` if it is one folder name (not empty, ``.`` or ``..``, without ``/``, ``\\`` or NUL,
+    at most ``NAME_MAX`` bytes), so that the run directory it names lies directly inside
+    ``--out``; RunDirError otherwise."""
     if not isinstance(name, str) or name in ("", ".", "..") or any(c in name for c in "/\\\0"):
         raise RunDirError(f"{what} {name!r} is not one folder name (a run name is not empty, '.' or '..' "
                           f"and has no / or \\ in it): {fix}")
+    if len(os.fsencode(name)) > NAME_MAX:
+        raise RunDirError(f"{what} {name[:40]!r}... is {len(os.fsencode(name))} bytes long, longer than a folder "
+                          f"name may be ({NAME_MAX} bytes): give a shorter one")
     return name
+
+
+def check_out_folder(out: str | Path) -> Path:
+    """``--out`` as a path, if each folder name in it is one a file system takes (at most
+    ``NAME_MAX`` bytes) and the nearest part of it that exists is a folder; RunDirError otherwise."""
+    path = Path(out)
+    too_long = [part for part in path.parts if len(os.fsencode(part)) > NAME_MAX]
+    if too_long:
+        raise RunDirError(f"--out {str(out)[:40]!r}... has a folder name of {len(os.fsencode(too_long[0]))} bytes, "
+                          f"longer than a folder name may be ({NAME_MAX} bytes): choose another --out")
+    existing = next((p for p in (path, *path.parents) if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise RunDirError(f"--out {str(out)!r} cannot be a folder: {existing} is a file: choose another --out")
+    return path
 
 
 def library_versions() -> dict[str, str]:
@@ -114,8 +136,10 @@ def _jsonable(value):
 def read_json(path: Path) -> Any:
     try:
         return json.loads(Path(path).read_text())
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):
         raise RunDirError(f"{path} does not exist: is this a run directory?") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise RunDirError(f"cannot read {path}: {getattr(error, 'strerror', None) or error}") from None
     except json.JSONDecodeError as error:
         raise RunDirError(f"{path} is not valid JSON ({error})") from None
 
@@ -193,7 +217,7 @@ class RunDir:
     def inside(cls, out: str | Path, name: Any, what: str = "--name", **fix) -> RunDir:
         """The run directory ``name`` directly inside ``out``; RunDirError unless ``name`` is one
         folder name (``check_run_name``)."""
-        return cls(Path(out) / check_run_name(name, what, **fix))
+        return cls(check_out_folder(out) / check_run_name(name, what, **fix))
 
     def lock(self) -> RunLock:
         """This existing run directory's lock, taken (RunDirInUseError where another process holds
@@ -219,18 +243,22 @@ class RunDir:
         holds locked (RunDirInUseError), a file where the directory goes, and an existing directory
         that holds anything (its lock file aside), unless ``overwrite`` and it is a run directory
         lifelong-evo wrote (it holds the ``MARKER``)."""
+        self.check_free()
+        self._check_contents(overwrite)
+
+    def check_free(self) -> None:
+        """RunDirInUseError where another process holds this run directory's lock."""
         holder = self.in_use_by()
         if holder is not None:
             raise RunDirInUseError(self.path, holder)
-        self._check_contents(overwrite)
 
     def _check_contents(self, overwrite: bool) -> None:
-        if self.path.exists() and not self.path.is_dir():
-            raise RunDirError(f"run directory {self.path} is a file: choose another --name or --out")
         try:
+            if self.path.exists() and not self.path.is_dir():
+                raise RunDirError(f"run directory {self.path} is a file: choose another --name or --out")
             if not self.path.exists() or not any(p.name != LOCK for p in self.path.iterdir()):
                 return
-        except OSError as error:
+        except OSError as error:  # a name too long, a folder that cannot be read
             raise RunDirError(f"cannot read run directory {self.path}: {error.strerror}: "
                               "choose another --out or --name") from None
         if not overwrite:

@@ -130,6 +130,36 @@ def test_a_sweep_files_name_is_checked_too(work, capsys):
     assert snapshot(work.parent) == before
 
 
+@pytest.mark.parametrize("argv, message", [
+    ([*RUN, "--name", "x" * 300], "is 300 bytes long, longer than a folder name may be (255 bytes): give a shorter one"),
+    ([*RUN, "--out", "y" * 300], "has a folder name of 300 bytes, longer than a folder name may be (255 bytes)"),
+    (["sweep", "--dry-run", *SIZE, "--out", "y" * 300], "has a folder name of 300 bytes"),
+    (["sweep", "--together", *SIZE, "--out", "unrelated/notes.txt"], "unrelated/notes.txt is a file: choose another"),
+    ([*RUN, "--out", "unrelated/notes.txt", "--resume"], "unrelated/notes.txt is a file: choose another --out"),
+    ([*RUN, "--out", "unrelated/notes.txt/deeper"], "unrelated/notes.txt is a file: choose another --out"),
+])
+def test_a_folder_no_file_system_takes_is_one_line(work, argv, message, capsys):
+    """Found by the command-line fuzz test: these were tracebacks (OSError) after the checks."""
+    before = snapshot(work.parent)
+    assert message in refused(argv, capsys)
+    assert snapshot(work.parent) == before
+
+
+def test_a_sweep_folder_that_cannot_be_written_is_one_line(work, monkeypatch, capsys):
+    """A read-only --out (root, who runs the tests here, can write anywhere: the refusal is played)."""
+    from lifelong_evo.commands import sweep
+
+    def read_only(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(sweep, "write_sweep_json", read_only)
+    before = snapshot(work.parent)
+    assert main(["sweep", "--together", *SIZE, "--name", "s"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: cannot write the sweep's folder ") and err.count("\n") == 1, err
+    assert snapshot(work.parent) == before
+
+
 # ----------------------------------------------------------------------------------------- --overwrite
 
 def test_overwrite_refuses_a_folder_lifelong_evo_did_not_write(work, capsys):
@@ -197,8 +227,9 @@ def test_a_locked_run_directory_is_refused_naming_its_holder(work, flags, capsys
     with run.lock():
         before = snapshot(work.parent)
         code = main([*RUN, "--name", "first", *flags])
-        err = capsys.readouterr().err
-        assert code == 2 and err.count("\n") == 1, err
+        captured = capsys.readouterr()
+        err = captured.err
+        assert code == 2 and err.count("\n") == 1 and captured.out == "", captured
         assert f"error: run directory {Path('runs/first')} is in use by {HOLDER}: wait for it to end" in err
         assert snapshot(work.parent) == before
     assert run.in_use_by() is None and (run.path / LOCK).read_text() == ""

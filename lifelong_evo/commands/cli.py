@@ -79,6 +79,7 @@ def _run(args: argparse.Namespace) -> int:
         args.out, config.default_name(), "the run name from --algo, --schedule, --reg and --seed", fix="give --name")
     if args.resume:
         config = run_dir.continuation(stated)
+        run_dir.check_free()  # the loop takes the lock
     else:
         run_dir.check_create(args.overwrite)  # the loop checks again, locked
     if args.memory_check:

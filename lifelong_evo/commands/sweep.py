@@ -57,6 +57,7 @@ import csv
 import io
 import json
 import os
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -69,7 +70,7 @@ from ..checkpoint import atomic_write_bytes
 from ..config import RunConfig
 from ..errors import UserError, interrupted_status, one_line
 from ..options import bounded, plain
-from ..rundir import RunDir, RunDirError, RunDirInUseError, find_run_dirs, write_json
+from ..rundir import RunDir, RunDirError, RunDirInUseError, check_out_folder, find_run_dirs, write_json
 from . import ray_cluster
 from .compare import write_comparison
 from .flags import add_run_options, typed
@@ -240,7 +241,7 @@ def _print(text: str) -> None:
 def main(args: argparse.Namespace) -> int:
     grid = build_grid(args)
     grid.name = default_sweep_name(grid) if grid.name is None else grid.name
-    sweep_dir = (Path(args.out) / grid.name).resolve()
+    sweep_dir = (check_out_folder(args.out) / grid.name).resolve()
     to_run: list[Trial] = []
     resuming: set[str] = set()
     for trial in grid.trials:
@@ -297,11 +298,18 @@ def main(args: argparse.Namespace) -> int:
         ray_cluster.check_token_file()
     # a cluster that cannot be joined is one error line before anything is written
     address = ray_cluster.check_cluster(args.address) if args.address and to_run else None
-    sweep_dir.mkdir(parents=True, exist_ok=True)
     ray_settings = {"address": args.address or "local", "workers": args.workers,
                     "gpus_per_trial": args.gpus_per_trial, "retries": args.retries}
-    write_sweep_json(sweep_dir, grid, ray_settings)
-    write_trials_csv(sweep_dir, grid)
+    new_folder = not sweep_dir.exists()
+    try:
+        sweep_dir.mkdir(parents=True, exist_ok=True)
+        write_sweep_json(sweep_dir, grid, ray_settings)
+        write_trials_csv(sweep_dir, grid)
+    except OSError as error:  # a read-only --out, or one on a file system that refuses the names
+        if new_folder:  # made just now: nothing of it is left half-made
+            shutil.rmtree(sweep_dir, ignore_errors=True)
+        raise UserError(f"cannot write the sweep's folder {sweep_dir}: {error.strerror or error}: choose another "
+                        "--out") from None
     interruption = None
     try:
         if to_run and args.together:
