@@ -305,3 +305,13 @@ def test_compare_sets_sizes_and_budgets_side_by_side(tmp_path):
     connections = [sum(c["enabled"] for c in g["genome"]["connections"]) for g in neat]
     assert sizes[("neat", "connections of the top at end of phase 1 (green)")] == pytest.approx(sum(connections) / 2)
     assert markdown.count("Controllers and budget") == 2
+    # how often an ES's top individual is its centre, from metrics.csv's top and centre columns
+    from lifelong_evo.commands.tables import top_is_centre_name
+    from lifelong_evo.rundir import read_metrics
+
+    shares = []
+    for seed in (1, 2):
+        green = [row for row in read_metrics(root / f"sep-cmaes-{seed}/metrics.csv") if row["task"] == "green"]
+        shares.append(100 * sum(row["top"] == row["centre"] for row in green) / len(green))
+    assert sizes[("sep-cmaes", top_is_centre_name(1, "green"))] == pytest.approx(sum(shares) / 2)
+    assert ("neat", top_is_centre_name(1, "green")) not in sizes

@@ -12,7 +12,7 @@ import torch
 
 from lifelong_evo import loop
 from lifelong_evo.config import resolve
-from lifelong_evo.metrics import held_out_summary, summarise
+from lifelong_evo.metrics import held_out_summary, parse_controller_key, summarise
 from lifelong_evo.rundir import RunDir
 
 CODES = {"red": 1, "green": 2, "purple": 3}
@@ -102,6 +102,35 @@ def test_every_number_lands_where_its_definition_puts_it(tmp_path, algo, monkeyp
     green = next(row for row in summary["forgetting"] if row["at_end_of"] == 3 and row["task"] == "green")
     assert green["C"] == expected_ends[1]["C"]
     assert green["F_pop"] == pytest.approx(expected_ends[1]["C"] - expected_ends[3]["pop"]["green"])
+
+
+@pytest.mark.parametrize("algo", ["neat", "sep-cmaes", "openai-es"])
+def test_each_exported_controller_is_the_one_its_kind_names(tmp_path, algo, monkeypatch):
+    """controllers/: the top individual is the best of all; an ES's centre is its centre and its best
+    sample the best of the others, the centre left out (at generation 0 the centre is red's best, so
+    a best sample that could be the centre shows)."""
+    config = resolve("smoke", None, {"algo": algo, "schedule": SCHEDULE, "record": False, "gap_window": 0,
+                                     "env": {"duration": 20}})
+    run_dir = RunDir(tmp_path / algo)
+    play_with_made_up_fitness(config, run_dir, monkeypatch)
+    es = algo != "neat"
+    population = 21 if es else 20
+    centre = population - 1
+    phases = ["red"] * 3 + ["green"] * 3 + ["red"] * 2 + ["purple"] * 2
+    assert max(range(population), key=lambda p: made_up("red", p, 0, population)) == centre
+    kinds = ("top", "centre", "best-sample") if es else ("top",)
+    exported = {}
+    for key, controller in run_dir.read_controllers().items():
+        parsed = parse_controller_key(key)
+        if parsed is None:  # final-top, the latest top
+            continue
+        g, kind = controller["generation"], parsed[2]
+        scores = {p: made_up(phases[g], p, g, population) for p in range(population)}
+        expected = {"top": max(scores.values()), "centre": scores[centre],
+                    "best-sample": max(v for p, v in scores.items() if p != centre)}[kind]
+        assert controller["fitness"] == expected == controller["selection_fitness"], (key, kind)
+        exported.setdefault(g, set()).add(kind)
+    assert exported == {g: set(kinds) for g in (0, 2, 5, 7, 9)}
 
 
 def test_summary_of_a_four_phase_schedule_with_a_repeated_task():

@@ -117,6 +117,7 @@ from .tables import (
     curve_outcomes,
     ft_area_name,
     size_name,
+    top_is_centre_name,
     group_estimates,
     is_nan,
     outcomes,
@@ -448,16 +449,24 @@ def size_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
     """Per run, what its controllers are made of and what a generation costs, so that no difference
     between families is read as the optimiser's that belongs to the representation: for the top
     controller exported at each task end, ``algorithms.controller_size`` (a NEAT genome's nodes and
-    enabled connections, changing as it evolves; an MLP's parameters, fixed), and the evaluations
-    per generation (controllers, an ES centre included, times training episodes)."""
+    enabled connections, changing as it evolves; an MLP's parameters, fixed), the evaluations
+    per generation (controllers, an ES centre included, times training episodes), and for an ES the
+    share of each phase's generations whose top individual is the centre (``top_is_centre_name``)."""
     figures: dict[Path, list[Figure]] = {}
     for run in runs:
         found: list[Figure] = []
         controllers = RunDir(run.path).read_controllers()
+        has_centre = "centre_current" in run.summary and (run.path / "metrics.csv").exists()
+        rows = read_metrics(run.path / "metrics.csv") if has_centre else []
         for i, task in enumerate(run.summary.get("phases", [])):
             exported = controllers.get(controller_key(i, task, "top"))
             if exported is not None:
                 found += [(SIZE, ("", size_name(what, i, task)), n) for what, n in controller_size(exported).items()]
+            in_phase = [row for row in rows if row["task_index"] == str(i) and row.get("centre", "") != ""]
+            if in_phase:
+                # the top's training score is the centre's: the centre itself, or a sample that ties it
+                share = sum(float(row["top"]) == float(row["centre"]) for row in in_phase) / len(in_phase)
+                found.append((SIZE, ("", top_is_centre_name(i, task)), 100 * share))
         population = run.config.get("population")
         if population is not None and "current" in run.summary:
             controllers_scored = int(population) + ("centre_current" in run.summary)

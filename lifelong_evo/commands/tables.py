@@ -267,14 +267,20 @@ def size_name(what: str, phase: int | None = None, task: str | None = None) -> s
     return what if phase is None else f"{what} of the top at end of phase {phase} ({task})"
 
 
+def top_is_centre_name(phase: int, task: str) -> str:
+    """The metric name of an ES's share of a phase's generations whose top individual is the centre."""
+    return f"% of the generations of phase {phase} ({task}) whose top scores as the centre"
+
+
 def _size_table(found: Estimates) -> list[str]:
     """The controllers' sizes and the evaluation budget of ``found``, where it has them."""
     rows = [[name, str(estimate)] for (_, name), (sec, estimate) in found.items() if sec == SIZE]
     if not rows:
         return []
     return ["Controllers and budget: the exported top controllers' size (a NEAT genome's hidden and output "
-            "nodes and enabled connections; an MLP's parameters) and the controllers times training episodes "
-            "each generation.", "", *table(["what", "value"], rows), ""]
+            "nodes and enabled connections; an MLP's parameters), the controllers times training episodes "
+            "each generation and, for an ES, how often the top individual is the centre (the noise-free mean, "
+            "or a sample that scores exactly as it does) rather than a sample.", "", *table(["what", "value"], rows), ""]
 
 
 def _curve_tables(found: Estimates) -> list[str]:
