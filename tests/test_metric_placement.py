@@ -133,6 +133,37 @@ def test_each_exported_controller_is_the_one_its_kind_names(tmp_path, algo, monk
     assert exported == {g: set(kinds) for g in (0, 2, 5, 7, 9)}
 
 
+@pytest.mark.parametrize("algo", ["neat", "sep-cmaes"])
+def test_the_held_out_block_holds_each_exported_controllers_own_scores(tmp_path, algo, monkeypatch):
+    """The loop's held-out block, with made-up held-out scores that say which controller (its
+    training fitness, unique to it) and which task (the thousands) they belong to: every C, R and F
+    of the top individual and the centre comes from the controller exported at that task end."""
+
+    def made_up_held_out(controllers, env_config, tasks, episodes):
+        return {key: {task.name: 1000.0 * CODES[task.name] + exported["fitness"] for task in tasks}
+                for key, exported in controllers.items()}
+
+    monkeypatch.setattr(loop, "score_controllers", made_up_held_out)
+    config = resolve("smoke", None, {"algo": algo, "schedule": SCHEDULE, "record": False, "gap_window": 0,
+                                     "env": {"duration": 20}})
+    run_dir = RunDir(tmp_path / algo)
+    block = play_with_made_up_fitness(config, run_dir, monkeypatch)["held_out"]
+    controllers = run_dir.read_controllers()
+    names = ["red", "green", "red", "purple"]
+
+    def held_out(i: int, kind: str, task: str) -> float:
+        return 1000.0 * CODES[task] + controllers[f"task{i}-{names[i]}-{kind}"]["fitness"]
+
+    for kind in ("top", "centre") if algo == "sep-cmaes" else ("top",):
+        assert block[f"current_{kind}"] == [held_out(i, kind, name) for i, name in enumerate(names)]
+        assert block[f"R_{kind}"] == [[held_out(i, kind, task) for task in names] for i in range(len(names))]
+        rows = {(row["at_end_of"], row["task"]): row for row in block["forgetting"]}
+        # green at the end of purple: from green's own phase (1); red at the end of green: from phase 0
+        assert rows[(3, "green")][f"F_{kind}"] == pytest.approx(held_out(1, kind, "green") - held_out(3, kind, "green"))
+        assert rows[(1, "red")][f"R_{kind}"] == held_out(1, kind, "red")
+        assert rows[(1, "red")][f"F_{kind}"] == pytest.approx(held_out(0, kind, "red") - held_out(1, kind, "red"))
+
+
 def test_summary_of_a_four_phase_schedule_with_a_repeated_task():
     """summarise() against values worked out by hand."""
     names = ["red", "green", "red", "purple"]

@@ -335,7 +335,7 @@ def differences_section(config: Configuration, baseline: Configuration, episodes
     if paired:
         lines.append("Paired by seed: per outcome the mean of the per-seed differences (this configuration minus "
                      "the baseline) with its 95% t-interval, the exact two-sided sign-flip permutation p-value (never "
-                     "below 2/2^n with n pairs: 0.0625 with 5), "
+                     f"below 2/2^n with n pairs: {2 / 2 ** len(seeds & theirs):.3g} with {len(seeds & theirs)}), "
                      "the effect size d_z (mean difference / SD of the differences), n: the seeds both ran that "
                      "have the figure, and the seeds a two-sided paired t-test (alpha 0.05) needs to detect d_z "
                      "with 80% power.")
