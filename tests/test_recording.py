@@ -292,8 +292,9 @@ def test_view_arguments_and_errors(es_run, tmp_path, capsys, monkeypatch):
 
 
 def test_view_refuses_what_rerun_cannot_read_before_starting_a_viewer(es_run, tmp_path, capsys, monkeypatch):
-    """A file of random bytes named .rrd started the viewer; a recording cut short by a killed run
-    still opens (the viewer reads it up to the break)."""
+    """A file of random bytes named .rrd started the viewer, and so did one that only begins as a
+    recording (the FourCC, then noise); a recording cut short by a killed run still opens (the
+    viewer reads it up to the break)."""
     from lifelong_evo.commands import view
 
     started = []
@@ -302,11 +303,16 @@ def test_view_refuses_what_rerun_cannot_read_before_starting_a_viewer(es_run, tm
     noise.write_bytes(random.Random(0).randbytes(4096))
     empty = tmp_path / "empty.rrd"
     empty.write_bytes(b"")
+    fourcc = tmp_path / "fourcc.rrd"
+    fourcc.write_bytes(b"RRF2" + random.Random(1).randbytes(4096))
+    header = tmp_path / "header.rrd"  # a real recording's stream header, then noise
+    header.write_bytes((es_run / "recording.rrd").read_bytes()[:12] + bytes(16) + random.Random(2).randbytes(4096))
     run = tmp_path / "run"
     shutil.copytree(es_run, run)
     (run / "recording-resumed-9.rrd").write_bytes(noise.read_bytes())  # a damaged part of a run's recording
     for target, reason in ((noise, 'Not an RRD file: expected FourCC header "RRF2"'),
-                           (empty, "file too small to be an RRD"), (run, "recording-resumed-9.rrd")):
+                           (empty, "file too small to be an RRD"), (fourcc, ""), (header, ""),
+                           (run, "recording-resumed-9.rrd")):
         assert cli_main(["view", str(target), "--web"]) == 2
         err = capsys.readouterr().err
         assert err.startswith("error: ") and "is not a recording Rerun can read" in err and reason in err, err

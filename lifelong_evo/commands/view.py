@@ -8,8 +8,9 @@ files. The native viewer is spawned where a display exists (DISPLAY or WAYLAND_D
 The command runs until the viewer closes or Ctrl-C.
 
 Contracts: every file is checked before the viewer starts: one that Rerun cannot read as a
-recording (``rerun.chunk.RrdReader``) is a one-line error (exit 2); one that starts as a recording
-and breaks off (a run killed mid-write) opens, since the viewer reads what is there. A web
+recording (``rerun.chunk.RrdReader``) is a one-line error (exit 2); one that breaks off (a run
+killed mid-write) opens where every message before the break reads, since the viewer reads what
+is there. A web
 viewer's ports are checked before anything is printed, and one in use is a one-line error (exit
 2), never a stale viewer behind a fresh address. The viewer process dies with
 ``view``, even when ``view`` is killed (on Linux the kernel sends it SIGTERM when its parent dies;
@@ -37,13 +38,14 @@ from ..rundir import RunDir
 HOST = "127.0.0.1"
 
 
-RRD_MAGIC = b"RRF2"
-"""The first bytes of every Rerun 0.41 recording (the FourCC that ``RrdReader`` checks)."""
+CUT_SHORT = re.compile(r"Message payload \(start (\d+), length \d+\) exceeds file size")
+"""How ``RrdReader`` reports a recording whose last message breaks off (rerun-sdk 0.41)."""
+MESSAGE_HEADER = 16
+"""The bytes before a message's payload in an .rrd file: its kind and its length, 8 bytes each."""
 
 
-def check_recording(path: Path) -> None:
-    """Refuse ``path`` unless Rerun can read it as a recording: ``RrdReader`` reads it whole, or
-    it begins as one (a recording a killed run cut short, which the viewer reads up to the break)."""
+def _unreadable(path: Path) -> str | None:
+    """Why ``RrdReader`` cannot read ``path`` as a recording, or None where it can."""
     import warnings
 
     from rerun.chunk import RrdReader
@@ -51,16 +53,31 @@ def check_recording(path: Path) -> None:
     try:
         with warnings.catch_warnings():  # a file without its footer is read by a scan, with a warning
             warnings.simplefilter("ignore")
-            RrdReader(path).recordings()
-        return
+            if not RrdReader(path).recordings():
+                return "it holds no recording"
+        return None
     except Exception as error:  # noqa: BLE001 - rerun raises RuntimeError and others; the reason is shown
-        reason = str(error).split(": ", 1)[-1].splitlines()[0] if str(error) else type(error).__name__
-    try:
-        with open(path, "rb") as handle:
-            if handle.read(len(RRD_MAGIC)) == RRD_MAGIC:
-                return
-    except OSError as error:
-        reason = error.strerror or str(error)
+        return str(error).split(": ", 1)[-1].splitlines()[0] if str(error) else type(error).__name__
+
+
+def check_recording(path: Path) -> None:
+    """Refuse ``path`` unless Rerun can read it as a recording: ``RrdReader`` reads it whole, or
+    it reads every message before the one a killed run cut short (the viewer reads up to the break)."""
+    reason = _unreadable(path)
+    if reason is None:
+        return
+    cut = CUT_SHORT.search(reason)
+    if cut is not None:
+        with tempfile.TemporaryDirectory() as scratch:
+            whole = Path(scratch) / "whole-messages.rrd"
+            try:
+                with open(path, "rb") as handle:
+                    whole.write_bytes(handle.read(max(int(cut.group(1)) - MESSAGE_HEADER, 0)))
+            except OSError as error:
+                reason = error.strerror or str(error)
+            else:
+                if _unreadable(whole) is None:
+                    return
     raise UserError(f"{path} is not a recording Rerun can read ({reason}): give a recording.rrd that a run or "
                     "replay wrote")
 
