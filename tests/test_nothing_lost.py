@@ -160,6 +160,22 @@ def test_a_sweep_folder_that_cannot_be_written_is_one_line(work, monkeypatch, ca
     assert snapshot(work.parent) == before
 
 
+def test_a_sweep_does_not_write_into_a_folder_of_someone_elses(work, capsys):
+    """``sweep --together --name mine`` replaced the sweep.json and comparison.md a user kept there."""
+    mine = work / "runs" / "mine"
+    mine.mkdir()
+    (mine / "comparison.md").write_text("my notes")
+    before = snapshot(work.parent)
+    for verb in (["--together"], ["--dry-run"]):
+        assert "is not a sweep's folder (it has no sweep.json a sweep wrote) but holds comparison.md" in \
+            refused(["sweep", *verb, *SIZE, "--name", "mine"], capsys)
+    assert snapshot(work.parent) == before
+    # a sweep's own folder is continued (the sweep's files rewritten, its finished trial skipped)
+    assert main(["sweep", "--together", *SIZE, "--name", "ours"]) == 0
+    assert main(["sweep", "--together", *SIZE, "--name", "ours"]) == 0
+    assert "skipped" in capsys.readouterr().out
+
+
 # ----------------------------------------------------------------------------------------- --overwrite
 
 def test_overwrite_refuses_a_folder_lifelong_evo_did_not_write(work, capsys):

@@ -70,7 +70,15 @@ from ..checkpoint import atomic_write_bytes
 from ..config import RunConfig
 from ..errors import UserError, interrupted_status, one_line
 from ..options import bounded, plain
-from ..rundir import RunDir, RunDirError, RunDirInUseError, check_out_folder, find_run_dirs, write_json
+from ..rundir import (
+    RunDir,
+    RunDirError,
+    RunDirInUseError,
+    check_out_folder,
+    find_run_dirs,
+    read_json,
+    write_json,
+)
 from . import ray_cluster
 from .compare import write_comparison
 from .flags import add_run_options, typed
@@ -212,6 +220,27 @@ def write_sweep_json(sweep_dir: Path, grid: Grid, ray_settings: dict[str, Any]) 
                    for t in grid.trials]})
 
 
+SWEEP_FILES = ("sweep.json", "trials.csv", "ray.log", "comparison*", "model_specific_lambda*")
+"""What a sweep writes into its folder besides its trials' run directories."""
+
+
+def check_sweep_folder(sweep_dir: Path) -> None:
+    """RunDirError where ``sweep_dir`` is not a sweep's folder (no sweep.json a sweep wrote) yet
+    holds files a sweep would replace: nothing of a folder of someone else's is overwritten."""
+    try:
+        if {"name", "grid", "trials"} <= set(read_json(sweep_dir / "sweep.json")):
+            return
+    except (RunDirError, TypeError):  # missing, unreadable, or JSON of another shape
+        pass
+    try:
+        clashing = sorted({p.name for pattern in SWEEP_FILES for p in sweep_dir.glob(pattern)})
+    except OSError:  # not a folder that can be read: the sweep's own checks say so
+        return
+    if clashing:
+        raise RunDirError(f"{sweep_dir} is not a sweep's folder (it has no sweep.json a sweep wrote) but holds "
+                          f"{', '.join(clashing)}, which a sweep writes: choose another --name or --out")
+
+
 # ---------------------------------------------------------------------------------------- comparison
 
 def aggregate(sweep_dir: Path, grid: Grid) -> str:
@@ -242,6 +271,7 @@ def main(args: argparse.Namespace) -> int:
     grid = build_grid(args)
     grid.name = default_sweep_name(grid) if grid.name is None else grid.name
     sweep_dir = (check_out_folder(args.out) / grid.name).resolve()
+    check_sweep_folder(sweep_dir)
     to_run: list[Trial] = []
     resuming: set[str] = set()
     for trial in grid.trials:
