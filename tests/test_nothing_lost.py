@@ -145,6 +145,13 @@ def test_a_folder_no_file_system_takes_is_one_line(work, argv, message, capsys):
     assert snapshot(work.parent) == before
 
 
+@pytest.mark.parametrize("verb", ["plot", "score", "compare", "view", "replay"])
+def test_a_path_no_file_system_takes_is_one_line_for_every_verb(work, verb, capsys):
+    before = snapshot(work.parent)
+    assert "File name too long: give another path" in refused([verb, "y" * 300], capsys)
+    assert snapshot(work.parent) == before
+
+
 def test_a_sweep_folder_that_cannot_be_written_is_one_line(work, monkeypatch, capsys):
     """A read-only --out (root, who runs the tests here, can write anywhere: the refusal is played)."""
     from lifelong_evo.commands import sweep

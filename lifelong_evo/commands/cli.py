@@ -131,6 +131,14 @@ def main(argv: list[str] | None = None) -> int:
     except (UserError, ConfigError, UnknownAlgorithmError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    except OSError as error:
+        if error.filename is None:  # not about a path that was given: a fault, with its traceback
+            raise
+        # a path the file system refuses (a name too long, a file where a folder should be, no access)
+        path = str(error.filename)
+        shown = path if len(path) <= 80 else f"{path[:77]}..."
+        print(f"error: cannot use {shown}: {error.strerror}: give another path", file=sys.stderr)
+        return 2
     except KeyboardInterrupt as interruption:
         print("\ninterrupted", file=sys.stderr)
         return interrupted_status(interruption)
