@@ -76,9 +76,8 @@ def _as_stored(value: Any) -> Any:
 class RunDirInUseError(RunDirError):
     """A run directory whose lock another process holds."""
 
-    def __init__(self, path: Path, holder: str):
-        super().__init__(f"run directory {path} is in use by {holder}: wait for it to end (or stop it), "
-                         "or choose another --name")
+    def __init__(self, path: Path, holder: str, fix: str = "or choose another --name"):
+        super().__init__(f"run directory {path} is in use by {holder}: wait for it to end (or stop it), {fix}")
 
 
 NAME_MAX = 255
@@ -246,11 +245,12 @@ class RunDir:
         self.check_free()
         self._check_contents(overwrite)
 
-    def check_free(self) -> None:
-        """RunDirInUseError where another process holds this run directory's lock."""
+    def check_free(self, **fix) -> None:
+        """RunDirInUseError (with ``fix``, if given, as its advice) where another process holds this
+        run directory's lock."""
         holder = self.in_use_by()
         if holder is not None:
-            raise RunDirInUseError(self.path, holder)
+            raise RunDirInUseError(self.path, holder, **fix)
 
     def _check_contents(self, overwrite: bool) -> None:
         try:

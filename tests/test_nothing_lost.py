@@ -258,6 +258,15 @@ def test_a_locked_run_directory_is_refused_naming_its_holder(work, flags, capsys
     assert run.in_use_by() is None and (run.path / LOCK).read_text() == ""
 
 
+def test_score_refuses_a_locked_run_before_scoring_any(work, capsys):
+    """``score runs/`` with one run in use scores none of them (nothing half-made)."""
+    with RunDir(work / "runs" / "second").lock():
+        before = snapshot(work.parent)
+        err = refused(["score", "runs"], capsys)
+        assert f"is in use by {HOLDER}: wait for it to end (or stop it), then score it" in err
+        assert snapshot(work.parent) == before
+
+
 @pytest.mark.parametrize("overwrite", [False, True], ids=["resume", "overwrite"])
 def test_a_sweep_trial_takes_the_lock_too(work, overwrite, capsys):
     """Ray runs ``run_trial`` in its workers: on a locked directory it fails in one line and

@@ -118,6 +118,8 @@ def main(args: argparse.Namespace) -> int:
                             "and --env of the run that evolved it") from None
         print(json.dumps({"controller": str(path), "episodes": episodes or HELD_OUT_EPISODES,
                           "scores": scores[path.stem]}))
+    for run_dir in runs:  # every run free before any is scored (the lock is taken again for the writing)
+        run_dir.check_free(fix="then score it")
     for run_dir in runs:
         with run_dir.lock():
             block = score_run(run_dir, episodes)
