@@ -84,6 +84,11 @@ NAME_MAX = 255
 """The longest folder name, in bytes, that Linux's and macOS's file systems take."""
 
 
+def _name_bytes(name: str) -> int:
+    """The length of folder name ``name`` as the file system counts it (``NAME_MAX``)."""
+    return len(os.fsencode(name))
+
+
 def check_run_name(name: Any, what: str = "--name",
                    fix: str = "give a folder name, and --out for the folder it goes in") -> str:
     """``name`` if it is one folder name (not empty, ``.`` or ``..``, without ``/``, ``\\`` or NUL,
@@ -92,8 +97,8 @@ def check_run_name(name: Any, what: str = "--name",
     if not isinstance(name, str) or name in ("", ".", "..") or any(c in name for c in "/\\\0"):
         raise RunDirError(f"{what} {name!r} is not one folder name (a run name is not empty, '.' or '..' "
                           f"and has no / or \\ in it): {fix}")
-    if len(os.fsencode(name)) > NAME_MAX:
-        raise RunDirError(f"{what} {name[:40]!r}... is {len(os.fsencode(name))} bytes long, longer than a folder "
+    if _name_bytes(name) > NAME_MAX:
+        raise RunDirError(f"{what} {name[:40]!r}... is {_name_bytes(name)} bytes long, longer than a folder "
                           f"name may be ({NAME_MAX} bytes): give a shorter one")
     return name
 
@@ -102,9 +107,9 @@ def check_out_folder(out: str | Path) -> Path:
     """``--out`` as a path, if each folder name in it is one a file system takes (at most
     ``NAME_MAX`` bytes) and the nearest part of it that exists is a folder; RunDirError otherwise."""
     path = Path(out)
-    too_long = [part for part in path.parts if len(os.fsencode(part)) > NAME_MAX]
+    too_long = [part for part in path.parts if _name_bytes(part) > NAME_MAX]
     if too_long:
-        raise RunDirError(f"--out {str(out)[:40]!r}... has a folder name of {len(os.fsencode(too_long[0]))} bytes, "
+        raise RunDirError(f"--out {str(out)[:40]!r}... has a folder name of {_name_bytes(too_long[0])} bytes, "
                           f"longer than a folder name may be ({NAME_MAX} bytes): choose another --out")
     existing = next((p for p in (path, *path.parents) if p.exists()), None)
     if existing is not None and not existing.is_dir():

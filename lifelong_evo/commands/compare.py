@@ -116,8 +116,6 @@ from .tables import (
     csv_rows,
     curve_outcomes,
     ft_area_name,
-    size_name,
-    top_is_centre_name,
     group_estimates,
     is_nan,
     outcomes,
@@ -126,8 +124,10 @@ from .tables import (
     section,
     seed_count,
     shown_controllers,
+    size_name,
     sorted_groups,
     table,
+    top_is_centre_name,
     write_csv,
 )
 
