@@ -12,7 +12,7 @@ may leave rows out, never change or move one between tables). To refresh a block
 or ``compare`` changed, run the command in its marker and copy the lines again."""
 from __future__ import annotations
 
-import argparse
+import functools
 import re
 import shlex
 from pathlib import Path
@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 
 from lifelong_evo.commands import compare
+from lifelong_evo.commands.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 BLOCK = re.compile(r"<!-- compare (?P<command>[^\n]*?) -->\n(?P<body>.*?)<!-- /compare -->", re.S)
@@ -77,10 +78,9 @@ def quotes(block: str, markdown: str) -> bool:
     return True
 
 
+@functools.lru_cache(maxsize=None)  # blocks quoting the same command share one report
 def report(command: str) -> str:
-    parser = argparse.ArgumentParser()
-    compare.add_arguments(parser)
-    args = parser.parse_args(shlex.split(command))
+    args = build_parser().parse_args(["compare", *shlex.split(command)])
     paths = [ROOT / path for path in args.paths]
     return compare.comparison(paths, args.episodes, compare.parse_baseline(args.baseline),
                               compare.parse_holm(args.holm)).markdown

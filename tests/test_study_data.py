@@ -48,8 +48,9 @@ def test_a_study_run_repeats_its_earlier_run_and_keeps_its_controllers(run):
 def _differing_cells(path, earlier) -> dict[int, dict[str, tuple[str, str]]]:
     """generation -> column -> (value in ``path``, value in ``earlier``) where the two metrics.csv
     files differ; the same rows and columns are required."""
-    rows, earlier_rows = (list(csv.DictReader(open(file, newline=""))) for file in (path, earlier))
-    assert [list(row) for row in rows[:1]] == [list(row) for row in earlier_rows[:1]]
+    readers = [csv.DictReader(open(file, newline="")) for file in (path, earlier)]
+    assert readers[0].fieldnames == readers[1].fieldnames
+    rows, earlier_rows = (list(reader) for reader in readers)
     assert [row["generation"] for row in rows] == [row["generation"] for row in earlier_rows]
     cells = {}
     for row, earlier_row in zip(rows, earlier_rows):
