@@ -28,14 +28,35 @@ import threading
 from dataclasses import replace
 
 import torch
+import torch._dynamo
 
 from .config import ConfigError
 from .sensing import batch_first
 from .state import Arena
 
 _CAPTURE_LOCK = threading.Lock()
+COMPILED_BATCH_SIZES = 1024
+"""Batch sizes for which a process may compile the step; more is an error (dynamo's default: 8)."""
 GRAPH_WARM_UP_STEPS = 3
 """Steps run (and undone) before a CUDA graph is captured: capture needs warmed-up kernels."""
+
+
+def compile_every_batch_size() -> None:
+    """Let a process compile the step for up to ``COMPILED_BATCH_SIZES`` batch sizes, and make
+    going past that an error (process-wide: these are ``torch._dynamo.config``'s settings).
+
+    By default dynamo compiles a function for at most 8 input shapes and then runs further
+    shapes eagerly, with only a warning. Eager rounds some floats differently from the compiled
+    step, so an evaluation's numbers would depend on which batch sizes the process had met
+    before: a run resumed in a fresh process, or a sweep trial that follows another in the same
+    worker, could score a generation differently from the same run played straight through.
+    (NEAT under 0.92's genetics meets about ten batch sizes: its population drifts around
+    ``pop_size``, and retention and held-out evaluations add more.)"""
+    dynamo = torch._dynamo.config
+    dynamo.recompile_limit = max(dynamo.recompile_limit, COMPILED_BATCH_SIZES)
+    # both graphs of the step count against the process's total
+    dynamo.accumulated_recompile_limit = max(dynamo.accumulated_recompile_limit, 2 * COMPILED_BATCH_SIZES)
+    dynamo.fail_on_recompile_limit_hit = True
 
 
 class StepExecution:
@@ -55,11 +76,13 @@ class StepExecution:
     def compile(self) -> None:
         """Compile the step with ``torch.compile``, as the two fused graphs around the rare
         pick conflicts: moving and reaching, then settling and sensing (static shapes: each
-        batch size compiles once). Observations outside ``step`` stay eager.
+        batch size compiles once, every one of them: ``compile_every_batch_size``). Observations
+        outside ``step`` stay eager.
 
         The graphs run under inductor's C++ wrapper, which releases the GIL: several Python
         threads, each stepping its own environment, then run in parallel (see
         ``lifelong_evo.evaluate``)."""
+        compile_every_batch_size()
         # every gather index is clamped into range, so inductor's per-element index checks can go
         options = {"assert_indirect_indexing": False, "cpp_wrapper": True}
         self._move_and_reach = torch.compile(self._move_and_reach, dynamic=False, options=options)
