@@ -718,24 +718,24 @@ def _colliding_start(env: ForagingEnv, generator: torch.Generator):
     return start
 
 
-def test_every_batch_size_compiles_whatever_the_process_compiled_before(monkeypatch):
+def test_every_batch_size_compiles_whatever_the_process_compiled_before():
     """A batch size met after dynamo's own limit is compiled like the first one. Dynamo would
     run it eagerly, which rounds differently, so that a run's numbers would depend on the batch
     sizes its process had met before (a resume, the trial before it in a sweep's worker); going
     past the toolkit's own limit is an error, never a silent switch to eager."""
-    # a process that has used up dynamo's limit: the next new batch size would run eagerly
-    monkeypatch.setattr(torch._dynamo.config, "recompile_limit", 1)
     # a configuration and batch sizes of this test alone, so no other test's graphs are reused
     config = ForagingConfig(n_boxes=7, max_retrieves=2, duration=10)
     generator = torch.Generator().manual_seed(3)
     new_graphs = []
-    for batch_size in (5, 7):
-        env = ForagingEnv(config, batch_size=batch_size, dtype=F64)
-        env.compile()
-        before = counters["stats"]["unique_graphs"]
-        env.reset(state=env.sample_state(TASKS["red"], generator))
-        env.step(torch.zeros(batch_size, config.n_agents, 3, dtype=F64))
-        new_graphs.append(counters["stats"]["unique_graphs"] - before)
+    # a process that has used up dynamo's limit: the next new batch size would run eagerly
+    with torch._dynamo.config.patch(recompile_limit=1):
+        for batch_size in (5, 7):
+            env = ForagingEnv(config, batch_size=batch_size, dtype=F64)
+            env.compile()
+            before = counters["stats"]["unique_graphs"]
+            env.reset(state=env.sample_state(TASKS["red"], generator))
+            env.step(torch.zeros(batch_size, config.n_agents, 3, dtype=F64))
+            new_graphs.append(counters["stats"]["unique_graphs"] - before)
     assert new_graphs == [2, 2], "each batch size compiles both graphs of the step"
     assert torch._dynamo.config.fail_on_recompile_limit_hit
 
