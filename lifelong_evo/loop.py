@@ -41,7 +41,7 @@ from .metrics import (INITIAL, FitnessStats, GenerationRecord, Retention, contro
                       summarise)
 from .progress import Progress
 from .recording import Recorder
-from .rundir import GenerationLog, MetricsLayout, ResumeError, RunDir, read_metrics
+from .rundir import GenerationLog, MetricsLayout, ResumeError, RunDir, machine, read_metrics
 from .schedule import Phase, distinct_tasks, training_episodes
 
 
@@ -60,6 +60,9 @@ class LoopState:
     first_task_from: str = ""
     """The run whose first task this one took over (``start_from``), if any."""
     wall_time_s: float = 0.0
+    machines: list[dict[str, Any]] = field(default_factory=list)
+    """The machines the run's generations ran on (``rundir.machine``), each with the generation from
+    which it ran them: one entry per change of machine, so a run resumed where it ran has one."""
 
 
 Lifelong = Generator[Evaluation, torch.Tensor, dict[str, Any]]
@@ -159,6 +162,9 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
             if config.from_scratch and len(phases) > 1:  # what this run does at that end: start afresh
                 optimizer = _make_optimizer(config, env_config, scratch_seed(config.seed, 1))
                 run_dir.save_checkpoint(state.generation, _checkpoint_payload(config, optimizer, generator, state))
+    here = machine(config.device)
+    if not state.machines or {k: v for k, v in state.machines[-1].items() if k != "from_generation"} != here:
+        state.machines.append({"from_generation": state.generation, **here})
     layout = MetricsLayout(tuple(t.name for t in tasks), species=config.algo == "neat", centre=centre is not None,
                            diagnostics=optimizer.diagnostics)
     log = GenerationLog(run_dir, layout, resumed_at=state.generation if resume or start_from else None)
@@ -169,7 +175,8 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
     def summary_now() -> dict[str, Any]:
         gap = stability_gap(read_metrics(run_dir.metrics), phase_names, config.gap_window) if config.gap_window else None
         return summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s, centre is not None,
-                         state.held_out, config.held_out_episodes, state.first_task_from, stability_gap=gap)
+                         state.held_out, config.held_out_episodes, state.first_task_from, stability_gap=gap,
+                         machines=state.machines)
 
     try:
         for generation, phase_index, in_task in _generations(phases, start=state.generation):
@@ -356,7 +363,7 @@ def _checkpoint_payload(config, optimizer, generator, state) -> dict[str, Any]:
     return {"config": config.to_dict(), "optimizer": optimizer.state_dict(), "generator": generator.get_state(),
             "loop": {"generation": state.generation, "phase_ends": state.phase_ends, "initial": state.initial,
                      "held_out": state.held_out, "first_task_from": state.first_task_from,
-                     "wall_time_s": state.wall_time_s}}
+                     "wall_time_s": state.wall_time_s, "machines": state.machines}}
 
 
 def _first_task_of(source: RunDir, config: RunConfig) -> dict[str, Any]:
@@ -404,10 +411,10 @@ def _load_state(payload: dict[str, Any], optimizer, generator) -> LoopState:
     optimizer.load_state_dict(payload["optimizer"])
     generator.set_state(payload["generator"])
     loop = payload["loop"]
-    # a checkpoint written before held-out scoring existed has no held-out scores
+    # a checkpoint written before held-out scoring (or the machines' record) existed has none
     return LoopState(generation=loop["generation"], phase_ends=loop["phase_ends"], initial=loop["initial"],
                      held_out=loop.get("held_out", {}), first_task_from=loop.get("first_task_from", ""),
-                     wall_time_s=loop["wall_time_s"])
+                     wall_time_s=loop["wall_time_s"], machines=loop.get("machines", []))
 
 
 def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopState:

@@ -127,6 +127,31 @@ def library_versions() -> dict[str, str]:
     return versions
 
 
+def machine(device: str) -> dict[str, Any]:
+    """The machine a process runs on, as far as it can change a run's numbers or its speed: the
+    CPU's name (with its family and model where Linux gives them: a VM often names only the
+    vendor's line), the widest vector instructions torch's kernels use on it (AVX2, AVX512, ...:
+    torch's and the compiled code's rounding follows them), the CPUs this process may use, and
+    the GPU when ``device`` is one."""
+    import torch  # here, not above: reading and checking run directories needs no torch
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        fields = dict(line.split(":", 1) for line in Path("/proc/cpuinfo").read_text().splitlines()[:30]
+                      if ":" in line)
+        fields = {key.strip(): value.strip() for key, value in fields.items()}
+        if "model name" in fields:
+            cpu = f"{fields['model name']} (family {fields.get('cpu family', '?')}, model {fields.get('model', '?')})"
+    except OSError:  # not Linux
+        pass
+    described: dict[str, Any] = {"cpu": cpu, "vector_isa": torch.backends.cpu.get_cpu_capability(),
+                                 "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                                 else os.cpu_count()}
+    if device.startswith("cuda"):
+        described["gpu"] = torch.cuda.get_device_name(torch.device(device))
+    return described
+
+
 def write_json(path: Path, value: Any) -> None:
     atomic_write_bytes(path, (json.dumps(value, indent=2, default=_jsonable) + "\n").encode())
 

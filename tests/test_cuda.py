@@ -7,6 +7,7 @@ Skipped where torch sees no CUDA device (CI has none). On a GPU machine:
 """
 from __future__ import annotations
 
+import json
 import random
 
 import pytest
@@ -118,6 +119,8 @@ def test_command_line_run_on_cuda_repeats(tmp_path, algo):
     for name in ("first", "again"):
         assert main([*argv, "--name", name]) == 0
     assert (tmp_path / "first/metrics.csv").read_text() == (tmp_path / "again/metrics.csv").read_text()
+    machines = json.loads((tmp_path / "first/summary.json").read_text())["machines"]
+    assert [entry["gpu"] for entry in machines] == [torch.cuda.get_device_name()]
 
 
 @pytest.mark.parametrize("compiled", [False, True], ids=["eager", "compiled"])

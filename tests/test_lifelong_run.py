@@ -63,7 +63,8 @@ def test_the_smoke_preset_shows_an_es_learning(tmp_path, capsys):
     best = [float(row["best"]) for row in _rows(tmp_path / "es/metrics.csv")]
     summary = json.loads((tmp_path / "es/summary.json").read_text())
     assert best[-1] > best[0] and max(summary["current"]) > 0
-    assert capsys.readouterr().out.rstrip().endswith(" s")  # its wall time, in seconds
+    wall, where = capsys.readouterr().out.rstrip().splitlines()[-2:]
+    assert wall.startswith("wall time: ") and wall.endswith(" s") and where.startswith("machine: ")
 
 
 @pytest.mark.parametrize("name", SMOKE_RUNS)
@@ -362,6 +363,37 @@ def test_a_run_from_before_a_setting_existed_resumes(smoke_runs, tmp_path):
     sorted(run.glob("checkpoints/generation-*.pt"))[-1].unlink()
     assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 0
     _same_numbers(run, smoke_runs / "neat")
+
+
+def test_summary_names_the_machine_and_a_resume_elsewhere_adds_one(smoke_runs, tmp_path, monkeypatch):
+    """summary.json names the machine the generations ran on (CPU, torch's vector instructions,
+    CPUs): one entry for a run made in one place; a run resumed on another machine adds that
+    machine from the generation it resumed at; resumed where it ran, it adds none."""
+    from lifelong_evo import loop
+    from lifelong_evo.rundir import machine
+
+    here = machine("cpu")
+    assert here["vector_isa"] == torch.backends.cpu.get_cpu_capability() and here["cpus"] >= 1 and here["cpu"]
+    summary = json.loads((smoke_runs / "neat/summary.json").read_text())
+    assert summary["machines"] == [{"from_generation": 0, **here}]
+
+    run = _copy(smoke_runs, tmp_path)
+    kept = sorted(run.glob("checkpoints/generation-*.pt"))[0]
+    for later in sorted(run.glob("checkpoints/generation-*.pt"))[1:]:
+        later.unlink()
+    resumed_at = int(kept.stem.split("-")[1])
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 0
+    assert json.loads((run / "summary.json").read_text())["machines"] == [{"from_generation": 0, **here}]
+
+    elsewhere = {**here, "cpu": "Another CPU (family 1, model 2)", "vector_isa": "AVX512"}
+    monkeypatch.setattr(loop, "machine", lambda device: elsewhere)
+    again = _copy(smoke_runs, tmp_path, "again")
+    for later in sorted(again.glob("checkpoints/generation-*.pt"))[1:]:
+        later.unlink()
+    assert main(["--resume", "--out", str(tmp_path), "--name", "again", "--no-record", "--quiet"]) == 0
+    assert json.loads((again / "summary.json").read_text())["machines"] == [
+        {"from_generation": 0, **here}, {"from_generation": resumed_at, **elsewhere}]
+    _same_numbers(again, smoke_runs / "neat")
 
 
 def test_runs_played_together_give_the_numbers_they_give_alone(tmp_path):

@@ -73,7 +73,7 @@ def test_bar_on_a_terminal_and_off():
 
 def test_a_run_writing_to_files_shows_where_it_writes_and_that_it_is_alive(tmp_path):
     """As under nohup or SLURM: stdout and stderr are files. The run directory comes first, then
-    progress lines (no carriage returns), then the summary with a wall time in seconds."""
+    progress lines (no carriage returns), then the summary with a wall time in seconds and the machine."""
     out, err = tmp_path / "out.log", tmp_path / "err.log"
     with open(out, "w") as stdout, open(err, "w") as stderr:
         subprocess.run([sys.executable, "-m", "lifelong_evo", "--algo", "neat", "--preset", "smoke",
@@ -82,7 +82,8 @@ def test_a_run_writing_to_files_shows_where_it_writes_and_that_it_is_alive(tmp_p
                        env={**os.environ, "PYTHONPATH": str(ROOT)})
     printed = out.read_text().splitlines()
     assert printed[0] == f"run directory: {tmp_path / 'logged'}"
-    assert printed[-1].startswith("wall time: ") and printed[-1].endswith(" s")
+    assert printed[-2].startswith("wall time: ") and printed[-2].endswith(" s")
+    assert printed[-1].startswith("machine: ") and printed[-1].endswith(" CPUs")
     progress = [line for line in err.read_text().splitlines() if line.startswith("task ")]
     assert "\r" not in err.read_text()
     assert [line.split("gen ")[1].split()[0] for line in progress] == ["1/6", "2/6", "4/6", "6/6"]

@@ -38,4 +38,9 @@ def summary_table(summary: dict[str, Any]) -> str:
             lines.append(f"{level:<5}  {_fmt(summary[f'ACC_{level}']):>6}  {_fmt(summary[f'BWT_{level}']):>6}  "
                          f"{_fmt(summary[f'FWT_{level}']):>6}")
     lines.append(f"\nwall time: {duration(summary['wall_time_s'])}")
+    machines = summary.get("machines", [])
+    for where in machines:
+        since = "" if len(machines) == 1 else f" from generation {where['from_generation']}"
+        gpu = f", {where['gpu']}" if where.get("gpu") else ""
+        lines.append(f"machine{since}: {where['cpu']}, {where['vector_isa']}, {where['cpus']} CPUs{gpu}")
     return "\n".join(lines)
