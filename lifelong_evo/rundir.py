@@ -127,6 +127,11 @@ def library_versions() -> dict[str, str]:
     return versions
 
 
+def usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity where the system has one, else all)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def machine(device: str) -> dict[str, Any]:
     """The machine a process runs on, as far as it can change a run's numbers or its speed: the
     CPU's name (with its family and model where Linux gives them: a VM often names only the
@@ -137,16 +142,14 @@ def machine(device: str) -> dict[str, Any]:
 
     cpu = platform.processor() or platform.machine()
     try:
-        fields = dict(line.split(":", 1) for line in Path("/proc/cpuinfo").read_text().splitlines()[:30]
-                      if ":" in line)
-        fields = {key.strip(): value.strip() for key, value in fields.items()}
+        lines = Path("/proc/cpuinfo").read_text().splitlines()[:30]
+        fields = {key.strip(): value.strip() for key, value in (line.split(":", 1) for line in lines if ":" in line)}
         if "model name" in fields:
             cpu = f"{fields['model name']} (family {fields.get('cpu family', '?')}, model {fields.get('model', '?')})"
     except OSError:  # not Linux
         pass
     described: dict[str, Any] = {"cpu": cpu, "vector_isa": torch.backends.cpu.get_cpu_capability(),
-                                 "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
-                                 else os.cpu_count()}
+                                 "cpus": usable_cpus()}
     if device.startswith("cuda"):
         described["gpu"] = torch.cuda.get_device_name(torch.device(device))
     return described

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..errors import UserError, one_line, terminating_as_interrupt
+from ..rundir import usable_cpus
 
 CONNECT_TIMEOUT_S = 5.0
 """How long the sweep waits for a cluster's address to answer before giving up."""
@@ -44,7 +45,7 @@ def _start_ray(address: str | None, given_address: str | None):
         except (ConnectionError, RuntimeError, ray.exceptions.RayError) as error:
             raise UserError(f"could not join the Ray cluster at {given_address}: {one_line(error)}") from None
     else:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+        cores = usable_cpus()
         # "local": always a new instance, never a cluster that `ray start` left running on this machine
         ray.init(address="local", num_cpus=cores, include_dashboard=False, **quiet)
     return ray, True

@@ -56,7 +56,6 @@ import argparse
 import csv
 import io
 import json
-import os
 import shutil
 import sys
 import time
@@ -77,6 +76,7 @@ from ..rundir import (
     check_out_folder,
     find_run_dirs,
     read_json,
+    usable_cpus,
     write_json,
 )
 from . import ray_cluster
@@ -372,7 +372,7 @@ def _check_memory(args: argparse.Namespace, to_run: list[Trial]) -> None:
     if args.together:
         memory.check([t.config for t in to_run], together=True, what=f"--together with {len(to_run)} trial(s)")
         return
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    cores = usable_cpus()
     at_once = min(len(to_run), args.workers or len(to_run), max(1, cores // min(_cpus(t.config) for t in to_run)))
     largest = sorted(to_run, key=lambda t: memory.estimate(t.config).host(), reverse=True)[:at_once]
     memory.check([t.config for t in largest], what=f"the sweep, with {at_once} trial(s) at once,")
