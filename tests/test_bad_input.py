@@ -139,6 +139,12 @@ CUDA = torch.cuda.is_available()
                                                         "(room for two species of 5 genomes"),
     # a population whose first speciation alone would take terabytes: memory grew with no output
     (["--population", "1000000"], "needs about "),
+    # a word before the options is a verb: a misspelt one was "unrecognized arguments", the benchmark's verb-like
+    # name too (it is a module of its own)
+    (["swep", "--config", "examples/sweep.toml"], "unknown verb 'swep': the verbs are run, replay, view, plot, "
+                                                  "compare, score, sweep, options; did you mean sweep?"),
+    (["bench", "--algo", "neat"], "unknown verb 'bench': the verbs are run, replay, view, plot, compare, score, "
+                                  "sweep, options; the benchmark is a module of its own: python -m lifelong_evo.bench"),
 ])
 def test_each_is_one_line_before_anything_is_written(argv, message, tmp_path, capsys):
     assert message in refused(argv, tmp_path / "runs", capsys)

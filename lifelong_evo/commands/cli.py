@@ -2,12 +2,13 @@
 
 ``run`` (the default verb) runs the lifelong experiment; ``replay``, ``view``, ``plot``,
 ``compare`` and ``sweep`` work on run directories; ``options`` lists the environment's and the
-optimisers' options. A mistake in what was given (an unknown option, a value its option cannot
-take, a missing file) is one line, ``error: ...``, and exit status 2, before anything is written.
+optimisers' options. A mistake in what was given (an unknown verb or option, a value its option
+cannot take, a missing file) is one line, ``error: ...``, and exit status 2, before anything is written.
 """
 from __future__ import annotations
 
 import argparse
+import difflib
 import shlex
 import sys
 
@@ -116,10 +117,26 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def unknown_verb(word: str) -> str:
+    """The error for a first word that is no verb (``run`` takes no words, only options): the verbs,
+    and the closest one or the benchmark's own module where the word looks like it."""
+    verbs = ["run", *VERBS]
+    if word == "bench":
+        fix = "the benchmark is a module of its own: python -m lifelong_evo.bench"
+    elif close := difflib.get_close_matches(word, verbs, n=1):
+        fix = f"did you mean {close[0]}?"
+    else:
+        fix = "see python -m lifelong_evo --help"
+    return f"unknown verb {word!r}: the verbs are {', '.join(verbs)}; {fix}"
+
+
 def main(argv: list[str] | None = None) -> int:
     """The command line with ``argv`` (default: ``sys.argv[1:]``); returns the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or (argv[0] not in ("run", *VERBS) and argv[0] not in ("-h", "--help")):
+    if argv and not argv[0].startswith("-") and argv[0] not in ("run", *VERBS):
+        print(f"error: {unknown_verb(argv[0])}", file=sys.stderr)
+        return 2
+    if not argv or argv[0] not in ("run", *VERBS, "-h", "--help"):
         argv = ["run", *argv]
     try:
         args = build_parser().parse_args(argv)
