@@ -16,7 +16,13 @@ import pytest
 DATA = Path(__file__).resolve().parents[1] / "docs/data"
 EARLIER = {"paper-claim": DATA / "paper-genetics"}
 """Each part of the study -> the earlier study whose runs of the same name it repeats."""
-DEVIATIONS: dict[str, dict[int, dict[str, tuple[str, str]]]] = {}
+DEVIATIONS: dict[str, dict[int, dict[str, tuple[str, str]]]] = {
+    # docs/results.md, "Lambda 11 on seed 31 does not repeat its earlier run in one generation"
+    "paper-claim/reg11-seed31": {521: {"mean": ("5.53833332096537", "5.537333323508501"),
+                                       "std": ("5.244873408500771", "5.243879552807582"),
+                                       "reg_mean": ("-15.266338947316012", "-15.26733894477288"),
+                                       "reg_std": ("7.005449016845879", "7.00590763634848")}},
+}
 """The cells in which a study run does not repeat its earlier run, reported in docs/results.md
 (the deciding study's status): run -> generation -> column -> (this run's value, the earlier
 run's). A run listed here must differ in exactly these cells; any other run, in none."""
