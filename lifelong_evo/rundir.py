@@ -29,6 +29,7 @@ import platform
 import re
 import shutil
 import socket
+import subprocess
 import time
 from dataclasses import dataclass, field, replace
 from importlib import metadata
@@ -124,7 +125,32 @@ def library_versions() -> dict[str, str]:
             versions[package] = metadata.version(package)
         except metadata.PackageNotFoundError:
             versions[package] = "not installed"
+    versions["lifelong-evo-commit"] = source_commit()
     return versions
+
+
+CODE_FOLDERS = ("lifelong_evo", "algorithms", "envs")
+"""The toolkit's packages, whose source a run's commit names."""
+
+
+def source_commit(package: Path = Path(__file__).resolve().parent) -> str:
+    """The git commit of the code this process imports: ``HEAD`` of the checkout that tracks
+    ``package``, with `` + local changes`` when a tracked file of the toolkit's packages differs from
+    it; ``unknown`` for an installed copy (git does not track it: a version number is all there is),
+    or without git. Two runs of one version number can differ in code between commits; this tells."""
+    def git(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run(["git", "-C", str(package), *args], capture_output=True, text=True, timeout=30)
+    try:
+        tracked = git("ls-files", "--error-unmatch", "__init__.py")
+        head = git("rev-parse", "HEAD")
+        top = git("rev-parse", "--show-toplevel")
+        if tracked.returncode or head.returncode or top.returncode:
+            return "unknown"
+        changed = subprocess.run(["git", "-C", top.stdout.strip(), "diff", "--quiet", "HEAD", "--", *CODE_FOLDERS],
+                                 capture_output=True, timeout=30)
+    except (OSError, subprocess.TimeoutExpired):
+        return "unknown"
+    return head.stdout.strip() + (" + local changes" if changed.returncode else "")
 
 
 def usable_cpus() -> int:

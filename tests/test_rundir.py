@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import math
 import os
+import shutil
 import socket
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -26,7 +28,9 @@ from lifelong_evo.rundir import (
     RunDirInUseError,
     describe_config,
     group_runs,
+    library_versions,
     retention_columns,
+    source_commit,
 )
 
 NEAT = MetricsLayout(("red", "green"), species=True, centre=False,
@@ -187,3 +191,37 @@ def test_one_process_holds_a_run_directory(tmp_path):
     assert run.in_use_by() is None and (run.lock_file).read_text() == ""
     with run.lock():
         assert run.in_use_by() == holder
+
+
+# ------------------------------------------------------------------------------ the code's commit
+
+def _git(folder: Path, *args: str) -> str:
+    return subprocess.run(["git", "-C", str(folder), "-c", "user.name=t", "-c", "user.email=t@t", *args],
+                          capture_output=True, text=True, check=True).stdout.strip()
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
+def test_a_run_names_the_commit_of_the_code_it_imports(tmp_path):
+    repo = tmp_path / "repo"
+    package = repo / "lifelong_evo"
+    package.mkdir(parents=True)
+    (package / "__init__.py").write_text("X = 1\n")
+    (repo / "notes.md").write_text("a\n")
+    _git(repo, "init", "-q")
+    _git(repo, "add", ".")
+    _git(repo, "commit", "-q", "-m", "first")
+    head = _git(repo, "rev-parse", "HEAD")
+    assert source_commit(package) == head
+    (repo / "notes.md").write_text("b\n")  # not the toolkit's code
+    assert source_commit(package) == head
+    (package / "__init__.py").write_text("X = 2\n")
+    assert source_commit(package) == f"{head} + local changes"
+    # an installed copy inside a checkout (a venv's site-packages) is not that checkout's code
+    installed = repo / ".venv" / "lifelong_evo"
+    shutil.copytree(package, installed)
+    assert source_commit(installed) == "unknown"
+    assert source_commit(tmp_path) == "unknown"
+    # this very checkout, as a run writes it into config.json
+    here = Path(__file__).resolve().parents[1]
+    if (here / ".git").exists():
+        assert library_versions()["lifelong-evo-commit"].split(" + ")[0] == _git(here, "rev-parse", "HEAD")
