@@ -355,7 +355,7 @@ class RunDir:
                     shutil.rmtree(entry)
                 else:
                     entry.unlink()
-            write_json(self.marker, {"written_by": "lifelong-evo", "version": library_versions()["lifelong-evo"],
+            write_json(self.marker, {"written_by": "lifelong-evo", "version": metadata.version("lifelong-evo"),
                                      "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
             self.checkpoints.mkdir()
             self.controllers.mkdir()
