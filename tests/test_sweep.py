@@ -212,9 +212,25 @@ def test_model_specific_lambda_selection():
         [(1, 5.0, 7.0, "neat-reg5-seed1"), (2, 0.0, 8.0, "neat-reg0-seed2")]
     # one lambda for both seeds: means 0: 7.0, 5: 6.5, 11: 7.0 -> 0 (tie with 11: the smaller)
     assert selection["shared"] == {"reg": 0.0, "means": {0.0: 7.0, 5.0: 6.5, 11.0: 7.0}}
-    # a lambda one seed did not run is no candidate
+    # every seed chooses among the same lambdas: a seed that did not run one of them is left out,
+    # of the choice per seed and of the one lambda for all seeds (seed 1 alone: 0: 6, 5: 7, 11: 6)
     (partial,) = select_model_specific([r for r in runs if r[2] != "neat-reg0-seed2"])
-    assert partial["shared"] == {"reg": 11.0, "means": {5.0: 6.5, 11.0: 7.0}}
+    assert [(c["seed"], c["reg"]) for c in partial["choices"]] == [(1, 5.0)]
+    assert partial["shared"] == {"reg": 5.0, "means": {0.0: 6.0, 5.0: 7.0, 11.0: 6.0}}
+    assert partial["left_out"] == {2: [5.0, 11.0]} and selection["left_out"] == {}
+    assert list(partial["candidates"]) == [1]
+    # so do the seeds of a second sweep that ran only some lambdas (the study's parts 1 and 2)
+    extra = [({**base, "seed": 3, "reg": float(reg)}, _summary(c1, r_top), f"neat-reg{reg}-seed3")
+             for reg, c1, r_top in [(0, 1.0, 1.0), (11, 9.0, 9.0)]]
+    (mixed,) = select_model_specific(runs + extra)
+    assert [c["tag"] for c in mixed["choices"]] == [c["tag"] for c in selection["choices"]]
+    assert mixed["shared"] == selection["shared"] and mixed["left_out"] == {3: [0.0, 11.0]}
+    _, report = model_specific_report([mixed], {tag: summary for _, summary, tag in runs + extra},
+                                      [config for config, _, _ in runs + extra])
+    assert ("lambda per seed: 1: 5, 2: 0. Left out, as they did not finish every lambda of 0, 5, 11: "
+            "seeds 3 (finished 0 and 11)") in report
+    # none finished every lambda: no row
+    assert select_model_specific([r for r in runs if r[2] not in ("neat-reg0-seed2", "neat-reg5-seed1")]) == []
     # an unfinished run is scored from its forgetting rows; before the end of phase 1 it is not scored
     assert selection_score(_summary(4.0, 3.0, complete=False)) == 7.0
     assert selection_score({"phases": ["red"], "current": [5.0], "forgetting": []}) is None

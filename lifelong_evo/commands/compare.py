@@ -588,8 +588,9 @@ def comparison(paths, episodes: str = "held-out", baseline: dict[str, str] | Non
     ms_rows, ms_markdown = model_specific_report(selections, dict(zip(tags, (r.summary for r in runs))), configs,
                                                  episodes)
     ms_json = [{"configuration": model_specific_label(s["config"], configs), "criterion": CRITERION,
-                "choices": s["choices"],
-                "one_lambda_for_all_seeds": None if s["shared"] is None else {
+                "choices": s["choices"], "left_out": [{"seed": seed, "lambdas": regs}
+                                                      for seed, regs in s["left_out"].items()],
+                "one_lambda_for_all_seeds": {
                     "reg": s["shared"]["reg"],
                     "mean_per_lambda": [{"reg": r, "mean": m} for r, m in s["shared"]["means"].items()]}}
                for s in selections]

@@ -57,29 +57,30 @@ def optimism_rows(selection: dict[str, Any], summaries: dict[Any, dict[str, Any]
                 str(Estimate.of([h for _, _, h in pairs], seeds)), str(Estimate.of([s - h for _, s, h in pairs], seeds))]
 
     chosen = row("chosen per seed", [(c["seed"], c["score"], c["tag"]) for c in selection["choices"]])
-    lambdas = sorted({reg for runs in selection["candidates"].values() for _, reg, _ in runs})
     rows = [chosen] + [row(f"lambda {reg:g}, every seed", [(seed, score, tag) for seed, runs in
                                                            sorted(selection["candidates"].items())
                                                            for score, r, tag in runs if r == reg])
-                       for reg in lambdas if all(any(r == reg for _, r, _ in runs)
-                                                 for runs in selection["candidates"].values())]
+                       for reg in selection["lambdas"]]
     return [r for r in rows if r is not None] if chosen is not None else []
 
 
 def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]) -> list[dict[str, Any]]:
     """The model-specific lambda: ``runs`` are (config.json dict, summary.json dict, tag) triples;
-    for each configuration without lambda that was run with several lambdas, and each of its seeds,
-    the run whose lambda maximises ``selection_score`` (ties: the smaller lambda). A run without
+    for each configuration without lambda that was run with several lambdas, and each of its seeds
+    that ran every one of them (and has reached the end of phase 1), the run whose lambda maximises
+    ``selection_score`` (ties: the smaller lambda). A run without
     regulariser (lambda 0) is a candidate of every such configuration it differs from only in the
     regulariser's options (``Optimizer.regularizer_options``: L2 and EWC-style importance both
     choose between their lambdas and none).
 
-    Returns one dict per such configuration: ``config`` (the config of one of its regularised
-    runs), ``choices``, one per seed in ascending order: ``seed``, ``reg``, ``score``, ``tag``, and
-    ``shared``, the one lambda for every seed: among the lambdas every seed ran, the one whose
-    mean ``selection_score`` over the seeds is highest (ties: the smaller lambda), with
-    ``means`` (lambda -> that mean); ``None`` where no lambda was run by every seed; and
-    ``candidates``: per seed, every run's (score, lambda, tag)."""
+    Returns one dict per such configuration with at least one such seed: ``config`` (the config
+    of one of its regularised runs), ``lambdas`` (ascending), ``choices``, one per such seed in
+    ascending order: ``seed``, ``reg``, ``score``, ``tag``; ``shared``, the one lambda for every
+    seed: the one whose mean ``selection_score`` over those seeds is highest (ties: the smaller
+    lambda), with ``means`` (lambda -> that mean); ``left_out``: the seeds that ran only some of
+    the lambdas, with those they ran (every seed chooses among the same lambdas, or a seed that
+    ran fewer would have an easier choice); and ``candidates``: per chosen seed, every run's
+    (score, lambda, tag)."""
     def without_lambda(config: dict[str, Any]) -> str:
         rest = {k: v for k, v in configuration_of(config).items() if k != "reg"}
         return json.dumps(rest, sort_keys=True, default=str)
@@ -102,29 +103,39 @@ def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]
                 group["by_seed"].setdefault(config["seed"], []).append((score, float(config["reg"]), tag))
     result = []
     for group in groups.values():
-        if len(group["regs"]) < 2 or not group["by_seed"]:
+        lambdas = sorted(group["regs"])
+        ran = {seed: {reg for _, reg, _ in runs_of_seed} for seed, runs_of_seed in group["by_seed"].items()}
+        # every seed chooses among the same lambdas: a seed that ran fewer would have an easier choice
+        complete = sorted(seed for seed in ran if ran[seed] == group["regs"])
+        if len(lambdas) < 2 or not complete:
             continue
         choices = []
-        for seed in sorted(group["by_seed"]):
+        for seed in complete:
             score, reg, tag = max(group["by_seed"][seed], key=lambda c: (c[0], -c[1]))
             choices.append({"seed": seed, "reg": reg, "score": score, "tag": tag})
-        scores: dict[float, list[float]] = {}
-        for runs_of_seed in group["by_seed"].values():
-            for score, reg, _ in runs_of_seed:
-                scores.setdefault(reg, []).append(score)
-        means = {reg: sum(v) / len(v) for reg, v in sorted(scores.items()) if len(v) == len(group["by_seed"])}
-        shared = None
-        if means:
-            best = max(means, key=lambda reg: (means[reg], -reg))
-            shared = {"reg": best, "means": means}
-        result.append({"config": group["config"], "choices": choices, "shared": shared,
-                       "candidates": {seed: group["by_seed"][seed] for seed in sorted(group["by_seed"])}})
+        means = {reg: sum(score for seed in complete for score, r, _ in group["by_seed"][seed] if r == reg)
+                 / len(complete) for reg in lambdas}
+        best = max(means, key=lambda reg: (means[reg], -reg))
+        result.append({"config": group["config"], "lambdas": lambdas, "choices": choices,
+                       "shared": {"reg": best, "means": means},
+                       "left_out": {seed: sorted(ran[seed]) for seed in sorted(ran) if seed not in complete},
+                       "candidates": {seed: group["by_seed"][seed] for seed in complete}})
     return result
 
 
 def model_specific_label(config: dict[str, Any], all_configs: list[dict[str, Any]]) -> str:
     """``compare``'s label of the configuration with ``reg=m.s.``, e.g. ``neat reg=m.s. red-green-red``."""
     return re.sub(r"reg=\S+", "reg=m.s.", describe_config(config, all_configs), count=1)
+
+
+def left_out_note(selection: dict[str, Any]) -> str:
+    """The seeds a selection left out, with the lambdas each finished; empty if none."""
+    if not selection["left_out"]:
+        return ""
+    every = ", ".join(f"{reg:g}" for reg in selection["lambdas"])
+    seeds = ", ".join(f"{seed} (finished {' and '.join(f'{reg:g}' for reg in regs)})"
+                      for seed, regs in selection["left_out"].items())
+    return f". Left out, as they did not finish every lambda of {every}: seeds {seeds}"
 
 
 def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any, dict[str, Any]],
@@ -142,9 +153,8 @@ def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any,
         label = model_specific_label(config, all_configs)
         choices = selection["choices"]
         lambdas = ", ".join(f"{c['seed']}: {c['reg']:g}" for c in choices)
-        shared = selection.get("shared")
-        one = "" if shared is None else (f"{shared['reg']:g} (" + ", ".join(
-            f"{reg:g}: {mean:.2f}" for reg, mean in shared["means"].items()) + ")")
+        shared = selection["shared"]
+        one = f"{shared['reg']:g} (" + ", ".join(f"{reg:g}: {mean:.2f}" for reg, mean in shared["means"].items()) + ")"
         found = {(SELECTION_TIME, CRITERION): ("selection", Estimate.of([c["score"] for c in choices],
                                                                         [c["seed"] for c in choices])),
                  **estimates([(c["seed"], summaries[c["tag"]]) for c in choices])}
@@ -152,7 +162,8 @@ def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any,
         overview.append([label, len(choices), lambdas, one, cell(found, (SELECTION_TIME, CRITERION)),
                          *overview_row(label, str(len(choices)), found, episodes)[2:]])
         optimism = optimism_rows(selection, summaries)
-        sections.append(section(f"### {label}", f"lambda per seed: {lambdas}", found, episodes))
+        sections.append(section(f"### {label}", f"lambda per seed: {lambdas}{left_out_note(selection)}", found,
+                                episodes))
         if optimism:
             sections.append("\n".join([
                 f"How optimistic the choice is: {CRITERION} on the training episodes it was chosen on "
@@ -166,8 +177,9 @@ def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any,
         "current performance plus its retention of the first task, at the end of the second task; ties: "
         "the smaller lambda), from summary.json: chosen on the training episodes (selection-time figures). "
         "The chosen runs are reported below with held-out figures where they have them (each table names its "
-        "episodes); mean over seeds [95% t-interval]. One lambda for all seeds: among the lambdas every seed "
-        "ran, the one with the highest mean of the criterion over the seeds (ties: the smaller), with each "
+        "episodes); mean over seeds [95% t-interval]. Every seed chooses among the same lambdas: a seed that "
+        "did not finish every lambda's second task is left out (each section names it). One lambda for all "
+        "seeds: the one with the highest mean of the criterion over those seeds (ties: the smaller), with each "
         "lambda's mean.", "",
         *table(["configuration", "n seeds", "lambda per seed", "one lambda for all seeds (mean per lambda)",
                 f"{CRITERION} (selection-time)", *OVERVIEW], overview), "",
