@@ -371,6 +371,40 @@ def test_the_model_specific_lambda_is_chosen_on_training_figures_and_reported_he
     assert line.split(" | ")[3] == f"{chosen.mean:.2f} [{chosen.low:.2f}, {chosen.high:.2f}]"
 
 
+def test_a_lambda_given_per_seed_is_reported_beside_the_chosen_one(lambdas):
+    """--per-seed-lambda (the paper's own per-seed table): the named runs form the configuration
+    reg=given, with the same tables as the model-specific choice, held-out where the runs have it."""
+    given = {1: 11.0, 2: 11.0, 3: 0.0, 4: 0.0, 5: 11.0}
+    out, markdown = _compare(lambdas, "--per-seed-lambda", " 1=11, 2=11,3=0,4=0,5=11.0")
+    (selection,) = json.loads((out / "model_specific_lambda.json").read_text())
+    assert [(c["seed"], c["reg"], c["tag"]) for c in selection["given"]] == [
+        (seed, reg, f"reg{reg:g}-seed{seed}") for seed, reg in given.items()]
+    assert [c["reg"] for c in selection["choices"]] == [0.0] * 5  # the rule's own choice is unchanged
+    part = markdown[markdown.index("### neat reg=given red-green-red"):]
+    assert part.splitlines()[2] == "lambda per seed, as given (--per-seed-lambda): 1: 11, 2: 11, 3: 0, 4: 0, 5: 11"
+    expected = t_interval([BASE_RED[s] + (RED_GAIN[s] if reg else 0.0) for s, reg in given.items()])
+    line = next(line for line in part.splitlines() if line.startswith("| red at end of phase 1 |"))
+    assert line.split(" | ")[3] == f"{expected.mean:.2f} [{expected.low:.2f}, {expected.high:.2f}]"
+    (row,) = [r for r in read_csv(out / "comparison.csv") if r["configuration"] == "neat reg=given red-green-red"
+              and r["episodes"] == "held-out" and r["metric"] == "R_top red at end of phase 1"]
+    assert row["reg"] == "given 11 11 0 0 11" and row["seeds"] == "1 2 3 4 5"
+
+
+@pytest.mark.parametrize("given, says", [
+    ("1=11,7=11", "no finished run of seed 7 lambda 11 among the seeds that finished every lambda of 0, 11 "
+                  "(1, 2, 3, 4, 5)"),
+    ("1=5", "no finished run of seed 1 lambda 5"),
+    ("1=11,1=0", "'1=0' is not SEED=LAMBDA, or names its seed twice"),
+    ("1:11", "'1:11' is not SEED=LAMBDA"),
+    ("one=11", "'one=11' is not SEED=LAMBDA"),
+    ("1=nan", "'1=nan' is not SEED=LAMBDA")])
+def test_a_bad_per_seed_lambda_is_refused_before_anything_is_written(lambdas, tmp_path, capsys, given, says):
+    assert cli_main(["compare", str(lambdas), "--out", str(tmp_path / "cmp"), "--per-seed-lambda", given]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --per-seed-lambda") and says in err and err.count("\n") == 1
+    assert not (tmp_path / "cmp").exists()
+
+
 def test_the_paper_genetics_study(capsys):
     """docs/data/paper-genetics: lambda 11 against lambda 0, paired over seeds 13, 17, 24, 31, 42,
     selection-time (the runs have no held-out block): the issue's t-intervals, R_top +6.8

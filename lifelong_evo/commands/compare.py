@@ -1,5 +1,6 @@
-"""``python -m lifelong_evo compare RUN_OR_DIR... [--out DIR] [--baseline KEY=VALUE,...] [--episodes ...]``:
-configurations side by side, and each against its baseline.
+"""``python -m lifelong_evo compare RUN_OR_DIR... [--out DIR] [--baseline KEY=VALUE,...] [--holm ...]
+[--per-seed-lambda SEED=LAMBDA,...] [--episodes ...]``: configurations side by side, and each against
+its baseline.
 
 Finds every run directory (config.json + summary.json) at or under the given paths (so a sweep
 folder works), groups the runs by configuration (``rundir.group_runs``: runs that differ only in
@@ -65,7 +66,8 @@ and their mean ``FT_area`` once both have ended every phase, from the two metric
 over the seeds that have a partner.
 
 Model-specific lambda ("m.s. reg"): where a configuration ran several lambdas, the lambda per
-seed that ``commands/model_specific.py`` chooses, reported as a configuration of its own. The
+seed that ``commands/model_specific.py`` chooses, reported as a configuration of its own; with
+``--per-seed-lambda``, beside it the lambdas given per seed (``reg=given``). The
 tables and their figures are ``commands/tables.py``, the statistics ``commands/statistics.py``,
 the overlay figures ``commands/plots.py``.
 """
@@ -96,7 +98,8 @@ from ..rundir import (
     write_json,
 )
 from ..schedule import parse_schedule
-from .model_specific import CRITERION, model_specific_label, model_specific_report, select_model_specific
+from .model_specific import (CRITERION, given_choices, model_specific_label, model_specific_report,
+                             parse_per_seed_lambda, select_model_specific)
 from .plots import overlay_figures
 from .statistics import Difference, difference, holm, seed_order
 from .tables import (
@@ -557,6 +560,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="an outcome of a family tested together (a study's secondary outcomes), as the "
                              "differences tables name it with its episodes, e.g. 'held-out:green C_top'; repeated, "
                              "one per outcome: the tables add its Holm-Bonferroni p over the family")
+    parser.add_argument("--per-seed-lambda", default=None, metavar="SEED=LAMBDA[,SEED=LAMBDA...]",
+                        help="beside the model-specific lambda, a lambda given per seed (e.g. a paper's own "
+                             "per-seed table: 13=5,17=5,24=5,31=11,42=11), reported as the configuration "
+                             "reg=given with the same tables, for each configuration that ran those runs")
     parser.add_argument("--episodes", choices=EPISODES_CHOICES, default="held-out",
                         help="the deployed controllers' figures in the tables: held-out (the default: where the "
                              "runs have summary.json's held_out block, else the selection-time ones), training "
@@ -574,15 +581,18 @@ class Comparison:
 
 
 def comparison(paths, episodes: str = "held-out", baseline: dict[str, str] | None = None,
-               family: HolmFamily = ()) -> Comparison:
+               family: HolmFamily = (), lambda_per_seed: dict[int, float] | None = None) -> Comparison:
     """``compare_table`` of the runs at or under ``paths`` plus, where a configuration ran several
-    lambdas, the model-specific lambda rows."""
+    lambdas, the model-specific lambda rows, and with ``lambda_per_seed`` the given ones
+    (``--per-seed-lambda``: UserError where no such configuration ran every run it names)."""
     runs = load_runs(paths, with_metrics=False)
     rows, markdown = _table(runs, episodes, baseline, family)
     names = [run.path.name for run in runs]
     tags = names if len(set(names)) == len(names) else [str(run.path) for run in runs]
     configs = [run.config for run in runs]
     selections = select_model_specific([(run.config, run.summary, tag) for run, tag in zip(runs, tags)])
+    if lambda_per_seed:
+        selections = _with_given(selections, lambda_per_seed)
     if not selections:
         return Comparison(rows, markdown, None, [])
     ms_rows, ms_markdown = model_specific_report(selections, dict(zip(tags, (r.summary for r in runs))), configs,
@@ -592,9 +602,28 @@ def comparison(paths, episodes: str = "held-out", baseline: dict[str, str] | Non
                                                       for seed, regs in s["left_out"].items()],
                 "one_lambda_for_all_seeds": {
                     "reg": s["shared"]["reg"],
-                    "mean_per_lambda": [{"reg": r, "mean": m} for r, m in s["shared"]["means"].items()]}}
+                    "mean_per_lambda": [{"reg": r, "mean": m} for r, m in s["shared"]["means"].items()]},
+                **({"given": s["given"]} if s.get("given") else {})}
                for s in selections]
     return Comparison(rows + ms_rows, markdown + "\n" + ms_markdown, ms_markdown, ms_json)
+
+
+def _with_given(selections: list[dict[str, Any]], lambda_per_seed: dict[int, float]) -> list[dict[str, Any]]:
+    """``selections`` with ``given`` choices where a configuration ran every run ``lambda_per_seed``
+    names; the first configuration's UserError where none did."""
+    result, errors = [], []
+    for selection in selections:
+        try:
+            selection = {**selection, "given": given_choices(selection, lambda_per_seed)}
+        except UserError as error:
+            errors.append(error)
+        result.append(selection)
+    if selections and len(errors) == len(selections):
+        raise errors[0]
+    if not selections:
+        raise UserError("--per-seed-lambda: no configuration was run with several lambdas; compare the runs of "
+                        "every lambda named together")
+    return result
 
 
 def write_report(report: Comparison, out: Path) -> str:
@@ -617,7 +646,8 @@ def write_comparison(paths, out: Path, episodes: str = "held-out", baseline: dic
 def main(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else default_out(args.paths)
     # a bad --baseline or --holm writes nothing
-    report = comparison(args.paths, args.episodes, parse_baseline(args.baseline), parse_holm(args.holm))
+    report = comparison(args.paths, args.episodes, parse_baseline(args.baseline), parse_holm(args.holm),
+                        parse_per_seed_lambda(args.per_seed_lambda))
     figures = overlay_figures(args.paths, out)  # reads every metrics.csv before it writes: a bad one writes nothing
     markdown = write_report(report, out)
     print(markdown)

@@ -17,6 +17,7 @@ import math
 import re
 from typing import Any
 
+from ..errors import UserError
 from ..rundir import configuration_of, describe_config
 from .tables import OVERVIEW, SELECTION_TIME, Estimate, cell, csv_rows, estimates, overview_row, section, table
 
@@ -45,7 +46,7 @@ def held_out_selection_score(summary: dict[str, Any]) -> float | None:
 
 def optimism_rows(selection: dict[str, Any], summaries: dict[Any, dict[str, Any]]) -> list[list[str]]:
     """How optimistic the per-seed choice is: for the chosen runs and for each lambda run on every
-    seed, the criterion's mean on the training episodes (selection-time), held-out, and the mean of
+    seed chosen for, the criterion's mean on the training episodes (selection-time), held-out, and the mean of
     the per-seed differences with its t-interval. The chosen runs' difference holds the selection
     bias every lambda has plus what choosing on the evaluated seed adds. Empty without held-out scores."""
     def row(label: str, picks: list[tuple[Any, float, Any]]) -> list[str] | None:
@@ -57,8 +58,9 @@ def optimism_rows(selection: dict[str, Any], summaries: dict[Any, dict[str, Any]
                 str(Estimate.of([h for _, _, h in pairs], seeds)), str(Estimate.of([s - h for _, s, h in pairs], seeds))]
 
     chosen = row("chosen per seed", [(c["seed"], c["score"], c["tag"]) for c in selection["choices"]])
+    seeds = {c["seed"] for c in selection["choices"]}
     rows = [chosen] + [row(f"lambda {reg:g}, every seed", [(seed, score, tag) for seed, runs in
-                                                           sorted(selection["candidates"].items())
+                                                           sorted(selection["candidates"].items()) if seed in seeds
                                                            for score, r, tag in runs if r == reg])
                        for reg in selection["lambdas"]]
     return [r for r in rows if r is not None] if chosen is not None else []
@@ -123,6 +125,40 @@ def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]
     return result
 
 
+def given_choices(selection: dict[str, Any], lambda_per_seed: dict[int, float]) -> list[dict[str, Any]]:
+    """``selection``'s choices replaced by a lambda given per seed (``compare --per-seed-lambda``,
+    e.g. the paper's own per-seed table), in ascending seed order; UserError where a named seed has
+    no finished run of its lambda among the seeds the selection chose for."""
+    runs = {seed: {reg: (score, tag) for score, reg, tag in found} for seed, found in selection["candidates"].items()}
+    missing = [f"seed {seed} lambda {reg:g}" for seed, reg in sorted(lambda_per_seed.items())
+               if reg not in runs.get(seed, {})]
+    if missing:
+        lambdas = ", ".join(f"{reg:g}" for reg in selection["lambdas"])
+        raise UserError(f"--per-seed-lambda: no finished run of {', '.join(missing)} among the seeds that finished every "
+                        f"lambda of {lambdas} ({', '.join(str(seed) for seed in runs) or 'none'}): name those seeds, "
+                        "each with one of those lambdas")
+    return [{"seed": seed, "reg": reg, "score": runs[seed][reg][0], "tag": runs[seed][reg][1]}
+            for seed, reg in sorted(lambda_per_seed.items())]
+
+
+def parse_per_seed_lambda(text: str | None) -> dict[int, float] | None:
+    """``--per-seed-lambda SEED=LAMBDA,...`` as seed -> lambda."""
+    if text is None:
+        return None
+    given: dict[int, float] = {}
+    for item in text.split(","):
+        seed, equals, reg = (part.strip() for part in item.partition("="))
+        try:
+            value = float(reg)
+            if not equals or not seed.lstrip("-").isdigit() or not math.isfinite(value) or int(seed) in given:
+                raise ValueError
+        except ValueError:
+            raise UserError(f"--per-seed-lambda {item.strip()!r} is not SEED=LAMBDA, or names its seed twice: give "
+                            "each seed once with its lambda, e.g. --per-seed-lambda 13=5,17=5,24=5,31=11,42=11") from None
+        given[int(seed)] = value
+    return given
+
+
 def model_specific_label(config: dict[str, Any], all_configs: list[dict[str, Any]]) -> str:
     """``compare``'s label of the configuration with ``reg=m.s.``, e.g. ``neat reg=m.s. red-green-red``."""
     return re.sub(r"reg=\S+", "reg=m.s.", describe_config(config, all_configs), count=1)
@@ -145,32 +181,36 @@ def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any,
     ``reg``): an overview line per m.s. configuration with the lambda per seed and the criterion,
     then its tables; means over seeds of the chosen runs with their 95% t-interval. The lambdas
     are chosen on the selection-time figures; the chosen runs are reported as ``episodes`` says
-    (held-out where they have the block, by default)."""
+    (held-out where they have the block, by default). A selection with ``given`` choices
+    (``given_choices``) adds a configuration ``reg=given`` with those, reported the same way."""
     rows: list[dict[str, Any]] = []
     overview, sections = [], []
     for selection in selections:
-        config = selection["config"]
-        label = model_specific_label(config, all_configs)
-        choices = selection["choices"]
-        lambdas = ", ".join(f"{c['seed']}: {c['reg']:g}" for c in choices)
+        label = model_specific_label(selection["config"], all_configs)
         shared = selection["shared"]
         one = f"{shared['reg']:g} (" + ", ".join(f"{reg:g}: {mean:.2f}" for reg, mean in shared["means"].items()) + ")"
-        found = {(SELECTION_TIME, CRITERION): ("selection", Estimate.of([c["score"] for c in choices],
-                                                                        [c["seed"] for c in choices])),
-                 **estimates([(c["seed"], summaries[c["tag"]]) for c in choices])}
-        rows += csv_rows(label, config, found, reg="m.s. " + " ".join(f"{c['reg']:g}" for c in choices))
-        overview.append([label, len(choices), lambdas, one, cell(found, (SELECTION_TIME, CRITERION)),
-                         *overview_row(label, str(len(choices)), found, episodes)[2:]])
-        optimism = optimism_rows(selection, summaries)
-        sections.append(section(f"### {label}", f"lambda per seed: {lambdas}{left_out_note(selection)}", found,
-                                episodes))
-        if optimism:
-            sections.append("\n".join([
-                f"How optimistic the choice is: {CRITERION} on the training episodes it was chosen on "
-                "(selection-time) and on the held-out episodes, and the per-seed difference; beside it each "
-                "lambda run on every seed, whose difference is the selection bias any top individual has.", "",
-                *table(["runs", "n seeds", "selection-time", "held-out", "selection-time - held-out"], optimism),
-                ""]))
+        reported = [(label, "m.s.", selection["choices"], f"lambda per seed: %s{left_out_note(selection)}")]
+        if selection.get("given"):
+            reported.append((label.replace("reg=m.s.", "reg=given", 1), "given", selection["given"],
+                             "lambda per seed, as given (--per-seed-lambda): %s"))
+        for name, tag, choices, intro in reported:
+            lambdas = ", ".join(f"{c['seed']}: {c['reg']:g}" for c in choices)
+            found = {(SELECTION_TIME, CRITERION): ("selection", Estimate.of([c["score"] for c in choices],
+                                                                            [c["seed"] for c in choices])),
+                     **estimates([(c["seed"], summaries[c["tag"]]) for c in choices])}
+            rows += csv_rows(name, selection["config"], found, reg=f"{tag} " + " ".join(f"{c['reg']:g}" for c in choices))
+            overview.append([name, len(choices), lambdas, one if tag == "m.s." else "",
+                             cell(found, (SELECTION_TIME, CRITERION)),
+                             *overview_row(name, str(len(choices)), found, episodes)[2:]])
+            sections.append(section(f"### {name}", intro % lambdas, found, episodes))
+            optimism = optimism_rows({**selection, "choices": choices}, summaries)
+            if optimism:
+                sections.append("\n".join([
+                    f"How optimistic the choice is: {CRITERION} on the training episodes it was chosen on "
+                    "(selection-time) and on the held-out episodes, and the per-seed difference; beside it each "
+                    "lambda run on every seed, whose difference is the selection bias any top individual has.", "",
+                    *table(["runs", "n seeds", "selection-time", "held-out", "selection-time - held-out"], optimism),
+                    ""]))
     markdown = "\n".join([
         "## Model-specific lambda (m.s. reg)", "",
         f"Per configuration and seed, the lambda of the sweep maximising {CRITERION} (the top individual's "
