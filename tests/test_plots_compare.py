@@ -189,7 +189,7 @@ def test_compare_groups_configurations_and_matches_hand_computation(sweep, tmp_p
 
 
 def test_the_retention_figure_draws_every_task_kept_while_another_is_current(sweep, tmp_path, monkeypatch):
-    """Red through green (solid) and green through red's return (dashed): the seeds' mean of
+    """Red through green (solid) and green through red's return (dotted): the seeds' mean of
     metrics.csv's retention columns, for the population and the top individual."""
     from lifelong_evo.rundir import read_metrics
 
@@ -200,7 +200,7 @@ def test_the_retention_figure_draws_every_task_kept_while_another_is_current(swe
     for ax, level in zip(figures["comparison-retention.png"].axes, ("pop", "top")):
         (labelled,) = [line for line in ax.get_lines() if "(n=2)" in line.get_label()]
         drawn = {line.get_linestyle(): line for line in ax.get_lines() if line.get_color() == labelled.get_color()}
-        for task, style, phase in (("red", "-", 1), ("green", "--", 2)):
+        for task, style, phase in (("red", "-", 1), ("green", ":", 2)):
             rows = [[r for r in seed if int(r["task_index"]) == phase and r[f"retention_{level}_{task}"]]
                     for seed in metrics]
             expected = np.mean([[float(r[f"retention_{level}_{task}"]) for r in seed] for seed in rows], axis=0)
@@ -209,7 +209,11 @@ def test_the_retention_figure_draws_every_task_kept_while_another_is_current(swe
             shown = ~np.isnan(y)
             assert list(x[shown]) == [int(r["generation"]) for r in rows[0]]
             np.testing.assert_allclose(y[shown], expected)
-        assert {t.get_text() for t in ax.get_legend().get_texts()} >= {"retention of red", "retention of green"}
+        legend = {t.get_text(): line for t, line in zip(ax.get_legend().get_texts(), ax.get_legend().get_lines())}
+        assert {"retention of red", "retention of green", "drift"} <= set(legend)
+        # every legend entry names one kind of line: the drifts' dashes are no task's
+        styles = [legend[name].get_linestyle() for name in ("retention of red", "retention of green", "drift")]
+        assert len(set(styles)) == 3
 
 
 def test_the_papers_table_has_a_line_per_configuration(sweep):

@@ -342,8 +342,9 @@ def _overlay(ax, groups: list[list[Run]], configs: list[dict[str, Any]], series)
     return drawn
 
 
-RETENTION_STYLES = ("-", "--", ":", "-.")
-"""Line style of each task's retention, in the schedule's order of first appearance."""
+RETENTION_STYLES = ("-", ":", "-.", (0, (5, 1, 1, 1, 1, 1)))
+"""Line style of each task's retention, in the schedule's order of first appearance (none of them
+the drift lines' dashes, so that a legend entry names one kind of line)."""
 
 
 def _overlay_retention(ax, groups: list[list[Run]], configs: list[dict[str, Any]], level: str) -> bool:
