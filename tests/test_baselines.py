@@ -304,7 +304,16 @@ def test_compare_sets_sizes_and_budgets_side_by_side(tmp_path):
     neat = [json.loads((root / f"neat-{seed}/controllers/task1-green-top.json").read_text()) for seed in (1, 2)]
     connections = [sum(c["enabled"] for c in g["genome"]["connections"]) for g in neat]
     assert sizes[("neat", "connections of the top at end of phase 1 (green)")] == pytest.approx(sum(connections) / 2)
-    assert markdown.count("Controllers and budget") == 2
+    assert markdown.count("Controllers and budget: ") == 2  # each configuration's section
+    # and one table beside the paper's tables, a line per family, each size in its own measure
+    (header, _, *lines) = [line for line in markdown.split("Controllers and budget (red -> green)")[1].splitlines()
+                           if line.startswith("|")][:4]
+    assert header == ("| configuration | n seeds | evaluations per generation | top at end of phase 0 (red) "
+                      "| top at end of phase 1 (green) |")
+    cells = {line.split(" | ")[0][2:].split()[0]: line.strip("| ").split(" | ") for line in lines}
+    assert cells["sep-cmaes"][2] == "42.00 [42.00, 42.00]" and cells["neat"][2] == "40.00 [40.00, 40.00]"
+    assert cells["sep-cmaes"][4] == f"parameters {42 * 16 + 17 * 3:.2f} [{42 * 16 + 17 * 3:.2f}, {42 * 16 + 17 * 3:.2f}]"
+    assert cells["neat"][4].startswith("nodes ") and f"; connections {sum(connections) / 2:.2f} [" in cells["neat"][4]
     # how often an ES's top individual is its centre, from metrics.csv's top and centre columns
     from lifelong_evo.commands.tables import top_is_centre_name
     from lifelong_evo.rundir import read_metrics

@@ -14,7 +14,9 @@ regulariser's options, are one) and writes, to ``--out`` (default: the one folde
                      best sample: the first task's C, the second's, the first task's retention R
                      and forgetting F at the second's end, the third task's C, ACC/BWT/FWT) and one
                      for the population (its best: C, R_pop, F_pop, ACC_pop/BWT_pop/FWT_pop, the
-                     wall time per run); then each configuration against its baseline (paired
+                     wall time per run), and one of controllers and budget (evaluations per
+                     generation, the top controller's size at each task end); then each
+                     configuration against its baseline (paired
                      by seed within an algorithm, or Welch across algorithms and where they
                      share fewer than two seeds: difference, 95%
                      interval, p, effect size, seeds for 80% power, per outcome of the paper's

@@ -366,7 +366,33 @@ def paper_tables(configurations: list[Configuration], episodes: str) -> list[str
                   "held-out counterpart) and the wall time per run; mean over seeds [95% t-interval].", "",
                   *table(["configuration", "n seeds", *(heading for heading, _ in columns),
                           "wall time per run (min)"], rows), ""]
+        lines += _budget_table(mine, list(phases))
     return lines
+
+
+SIZE_MEASURES = ("nodes", "connections", "parameters")
+"""What ``algorithms.controller_size`` counts: a NEAT genome's nodes and connections, an MLP's parameters."""
+
+
+def _budget_table(configurations: list[Configuration], phases: list[str]) -> list[str]:
+    """One line per configuration: its evaluations per generation and the size of the top
+    controller exported at each task end, in its family's measure (``size_figures``), so that the
+    families' rows of the paper's tables are read with what their controllers and budgets are;
+    nothing where no configuration has these figures."""
+    def sizes(found: Estimates, phase: int, task: str) -> str:
+        parts = [f"{what} {found[key][1]}" for what in SIZE_MEASURES
+                 if (key := ("", size_name(what, phase, task))) in found]
+        return "; ".join(parts) or "-"
+
+    if not any(sec == SIZE for c in configurations for sec, _ in c.found.values()):
+        return []
+    rows = [[c.label, c.n, cell(c.found, ("", size_name("evaluations per generation"))),
+             *(sizes(c.found, i, task) for i, task in enumerate(phases))] for c in configurations]
+    return [f"Controllers and budget ({' -> '.join(phases)}): the controllers times training episodes each "
+            "generation, and the size of the top controller exported at each task end (a NEAT genome's hidden and "
+            "output nodes and enabled connections; an MLP's parameters); mean over seeds [95% t-interval].", "",
+            *table(["configuration", "n seeds", "evaluations per generation",
+                    *(f"top at end of phase {i} ({task})" for i, task in enumerate(phases))], rows), ""]
 
 
 def csv_rows(label: str, config: dict[str, Any], found: Estimates, reg: Any = None) -> list[dict[str, Any]]:
