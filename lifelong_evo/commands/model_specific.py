@@ -5,7 +5,10 @@ task at the end of the second task: the controller one would deploy, good at bot
 smaller lambda), chosen on the selection-time figures (the training episodes) and reported as a
 configuration of its own with the chosen lambda per seed, its tables held-out where the chosen
 runs have the block; beside it the one lambda for all seeds, the highest mean of the same
-criterion over the seeds (``select_model_specific``, ``model_specific_report``). A lambda chosen
+criterion over the seeds (``select_model_specific``, ``model_specific_report``). Every seed chooses
+among the same lambdas: a seed without a finished run of each is left out, and named. A lambda
+given per seed instead (``given_choices``: a paper's own per-seed table) is reported the same way,
+as ``reg=given``. A lambda chosen
 per seed on the seed it is reported on is optimistic: the report says so, and by how much where
 the runs have held-out scores (``optimism_rows``: the criterion on the training episodes minus the
 same criterion held-out, for the chosen runs and, as the reference, for each lambda on every seed).
