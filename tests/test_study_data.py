@@ -45,6 +45,20 @@ def test_a_study_run_repeats_its_earlier_run_and_keeps_its_controllers(run):
     assert {key for key in summary["held_out"]["scores"]} <= kept
 
 
+def test_the_status_counts_the_runs_kept():
+    """docs/results.md's status of part 1 and its reproducibility check are counted from the data:
+    the runs kept, and those of them with an earlier run, passed where they differ in no cell."""
+    import re
+
+    text = (DATA.parent / "results.md").read_text()
+    kept = [run for run in RUNS if run.parent.name == "paper-claim"]
+    (finished,) = re.findall(r"Part 1:\s+(\d+) of 30 runs finished", text)
+    assert int(finished) == len(kept)
+    repeated = [run for run in kept if (EARLIER["paper-claim"] / run.name).is_dir()]
+    passed = len(repeated) - sum(f"paper-claim/{run.name}" in DEVIATIONS for run in repeated)
+    assert f"The reproducibility check: {passed} of {len(repeated)} passed" in text
+
+
 def _differing_cells(path, earlier) -> dict[int, dict[str, tuple[str, str]]]:
     """generation -> column -> (value in ``path``, value in ``earlier``) where the two metrics.csv
     files differ, except retention cells that ``earlier`` left empty; the same rows and columns
