@@ -647,7 +647,7 @@ def write_comparison(paths, out: Path, episodes: str = "held-out", baseline: dic
 
 def main(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else default_out(args.paths)
-    # a bad --baseline or --holm writes nothing
+    # a bad --baseline, --holm or --per-seed-lambda writes nothing
     report = comparison(args.paths, args.episodes, parse_baseline(args.baseline), parse_holm(args.holm),
                         parse_per_seed_lambda(args.per_seed_lambda))
     figures = overlay_figures(args.paths, out)  # reads every metrics.csv before it writes: a bad one writes nothing
