@@ -118,13 +118,18 @@ def check_out_folder(out: str | Path) -> Path:
     return path
 
 
+def package_version(package: str) -> str:
+    """An installed distribution's version, or ``not installed``."""
+    try:
+        return metadata.version(package)
+    except metadata.PackageNotFoundError:
+        return "not installed"
+
+
 def library_versions() -> dict[str, str]:
     versions = {"python": platform.python_version()}
     for package in ("torch", "neat-python", "evotorch", "numpy", "gymnasium", "rerun-sdk", "lifelong-evo"):
-        try:
-            versions[package] = metadata.version(package)
-        except metadata.PackageNotFoundError:
-            versions[package] = "not installed"
+        versions[package] = package_version(package)
     versions["lifelong-evo-commit"] = source_commit()
     return versions
 
@@ -143,11 +148,10 @@ def source_commit(package: Path = Path(__file__).resolve().parent) -> str:
     try:
         tracked = git("ls-files", "--error-unmatch", "__init__.py")
         head = git("rev-parse", "HEAD")
-        top = git("rev-parse", "--show-toplevel")
-        if tracked.returncode or head.returncode or top.returncode:
+        if tracked.returncode or head.returncode:
             return "unknown"
-        changed = subprocess.run(["git", "-C", top.stdout.strip(), "diff", "--quiet", "HEAD", "--", *CODE_FOLDERS],
-                                 capture_output=True, timeout=30)
+        # ":/" names a path from the checkout's top, wherever ``package`` lies in it
+        changed = git("diff", "--quiet", "HEAD", "--", *(f":/{folder}" for folder in CODE_FOLDERS))
     except (OSError, subprocess.TimeoutExpired):
         return "unknown"
     return head.stdout.strip() + (" + local changes" if changed.returncode else "")
@@ -355,7 +359,7 @@ class RunDir:
                     shutil.rmtree(entry)
                 else:
                     entry.unlink()
-            write_json(self.marker, {"written_by": "lifelong-evo", "version": metadata.version("lifelong-evo"),
+            write_json(self.marker, {"written_by": "lifelong-evo", "version": package_version("lifelong-evo"),
                                      "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
             self.checkpoints.mkdir()
             self.controllers.mkdir()

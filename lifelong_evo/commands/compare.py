@@ -613,6 +613,9 @@ def comparison(paths, episodes: str = "held-out", baseline: dict[str, str] | Non
 def _with_given(selections: list[dict[str, Any]], lambda_per_seed: dict[int, float]) -> list[dict[str, Any]]:
     """``selections`` with ``given`` choices where a configuration ran every run ``lambda_per_seed``
     names; the first configuration's UserError where none did."""
+    if not selections:
+        raise UserError("--per-seed-lambda: no configuration was run with several lambdas; compare the runs of "
+                        "every lambda named together")
     result, errors = [], []
     for selection in selections:
         try:
@@ -620,11 +623,8 @@ def _with_given(selections: list[dict[str, Any]], lambda_per_seed: dict[int, flo
         except UserError as error:
             errors.append(error)
         result.append(selection)
-    if selections and len(errors) == len(selections):
+    if len(errors) == len(selections):
         raise errors[0]
-    if not selections:
-        raise UserError("--per-seed-lambda: no configuration was run with several lambdas; compare the runs of "
-                        "every lambda named together")
     return result
 
 
