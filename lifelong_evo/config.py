@@ -54,7 +54,8 @@ class RunConfig:
     C++ compiler (docs/performance.md)."""
     cuda_graphs: bool = False
     """Replay the environment's step as one CUDA graph (needs --device cuda): the same numbers in
-    one launch instead of many small kernels (docs/performance.md)."""
+    one launch instead of many small kernels. With --compile the capture hung on the one GPU it
+    was tried on (docs/performance.md)."""
     record: bool = True
     """Write recording.rrd (Rerun)."""
     episodes_every: int = field(default=0, metadata={"min": 0, "max": MAX_GENERATIONS})
