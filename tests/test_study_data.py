@@ -1,7 +1,8 @@
 """What docs/results.md says of the deciding study's data, checked on the data kept in
 docs/data/study: each run's numbers repeat the earlier run of its configuration and seed byte for
 byte where one exists (the reproducibility check of its plan), apart from the cells
-docs/results.md reports as not repeated (``DEVIATIONS``) and the retention cells the earlier run
+docs/results.md reports as not repeated (``DEVIATIONS``), the runs it reports as made on another
+kind of CPU (``ANOTHER_CPU``), and the retention cells the earlier run
 left empty (the stability gap's window, which the study's runs have and the earlier ones had
 not, scores earlier tasks in every generation just after a switch), and each run keeps what the
 held-out protocol needs (its controllers and its held-out block)."""
@@ -26,6 +27,13 @@ DEVIATIONS: dict[str, dict[int, dict[str, tuple[str, str]]]] = {
 """The cells in which a study run does not repeat its earlier run, reported in docs/results.md
 (the deciding study's status): run -> generation -> column -> (this run's value, the earlier
 run's). A run listed here must differ in exactly these cells; any other run, in none."""
+ANOTHER_CPU: dict[str, tuple[str, str]] = {
+    # docs/results.md, "Lambda 11 on seed 13, run on the Intel AVX-512 VM, differs ... from generation 0"
+    "paper-claim/reg11-seed13": ("0.06466666693488757", "0.06500000024835269"),
+}
+"""Study runs made on another kind of CPU than their earlier run (an Intel VM against AMD ones),
+which part from it at generation 0, reported in docs/results.md: run -> generation 0's mean (this
+run's, the earlier run's). Such a run is checked to differ from its first generation on."""
 RUNS = sorted(path for path in (DATA / "study").glob("*/*") if (path / "metrics.csv").is_file())
 
 
@@ -36,9 +44,12 @@ def test_the_study_has_data():
 @pytest.mark.parametrize("run", RUNS, ids=lambda path: f"{path.parent.name}/{path.name}")
 def test_a_study_run_repeats_its_earlier_run_and_keeps_its_controllers(run):
     earlier = EARLIER.get(run.parent.name, DATA / "none") / run.name
-    if earlier.is_dir():
-        assert _differing_cells(run / "metrics.csv", earlier / "metrics.csv") == \
-            DEVIATIONS.get(f"{run.parent.name}/{run.name}", {})
+    name = f"{run.parent.name}/{run.name}"
+    if earlier.is_dir() and name in ANOTHER_CPU:
+        cells = _differing_cells(run / "metrics.csv", earlier / "metrics.csv")
+        assert min(cells) == 0 and cells[0]["mean"] == ANOTHER_CPU[name]
+    elif earlier.is_dir():
+        assert _differing_cells(run / "metrics.csv", earlier / "metrics.csv") == DEVIATIONS.get(name, {})
     summary = json.loads((run / "summary.json").read_text())
     assert len(summary["phases"]) == 3 and summary["held_out"]["episodes"] == 100
     kept = {path.stem for path in (run / "controllers").glob("*.json")}
@@ -55,7 +66,7 @@ def test_the_status_counts_the_runs_kept():
     (finished,) = re.findall(r"Part 1:\s+(\d+) of 30 runs finished", text)
     assert int(finished) == len(kept)
     repeated = [run for run in kept if (EARLIER["paper-claim"] / run.name).is_dir()]
-    passed = len(repeated) - sum(f"paper-claim/{run.name}" in DEVIATIONS for run in repeated)
+    passed = len(repeated) - sum(f"paper-claim/{run.name}" in {**DEVIATIONS, **ANOTHER_CPU} for run in repeated)
     assert f"The reproducibility check: {passed} of {len(repeated)} passed" in text
 
 
