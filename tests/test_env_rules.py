@@ -855,12 +855,16 @@ class _FakeCapture:
             into.copy_(value)
 
 
-def test_captured_step_replays_the_plain_step(monkeypatch):
+@pytest.mark.parametrize("compiled", [False, True], ids=["eager", "compiled"])
+def test_captured_step_replays_the_plain_step(monkeypatch, compiled):
     """The capture's plumbing, on the CPU with a stand-in for CUDA: the warm-up steps before the
     capture are undone, each replay reads the wheels of its step, a reset writes where the
-    replays read, and the numbers are the plain step's."""
+    replays read, and the numbers are the plain step's, eager and compiled."""
     config = ForagingConfig(n_boxes=12, max_retrieves=3, duration=40)
     plain, graphed = (ForagingEnv(config, batch_size=24, dtype=F64) for _ in range(2))
+    if compiled:
+        plain.compile()
+        graphed.compile()
     fake = _FakeCapture(graphed)
     stream = type("Stream", (), {"wait_stream": lambda self, other: None})
     monkeypatch.setattr(torch.cuda, "Stream", lambda device=None: stream())
