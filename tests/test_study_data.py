@@ -76,6 +76,22 @@ def test_the_status_counts_the_runs_kept():
     assert f"The reproducibility check: {passed} of {len(repeated)} passed" in text
 
 
+@pytest.mark.parametrize("run", [run for run in RUNS if json.loads((run / "summary.json").read_text())
+                                 .get("first_task_from")], ids=lambda path: f"{path.parent.name}/{path.name}")
+def test_a_run_that_took_over_a_first_task_repeats_it(run):
+    """A study run started from another kept run's first task (``sweep --share-first-task``) has
+    that run's rows up to the task's end, byte for byte."""
+    source_name = Path(json.loads((run / "summary.json").read_text())["first_task_from"]).name
+    sources = [other for other in RUNS if other.name == source_name and other != run]
+    if not sources:
+        pytest.skip(f"the run it started from, {source_name}, is not kept")
+    rows, source_rows = ((run / "metrics.csv").read_text().splitlines(), (sources[0] / "metrics.csv").read_text().splitlines())
+    task_index = rows[0].split(",").index("task_index")
+    first_task = [row for row in rows[1:] if row.split(",")[task_index] == "0"]
+    assert len(first_task) == 200
+    assert first_task == [row for row in source_rows[1:] if row.split(",")[task_index] == "0"]
+
+
 def _differing_cells(path, earlier) -> dict[int, dict[str, tuple[str, str]]]:
     """generation -> column -> (value in ``path``, value in ``earlier``) where the two metrics.csv
     files differ, except retention cells that ``earlier`` left empty; the same rows and columns
