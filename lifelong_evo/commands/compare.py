@@ -645,11 +645,16 @@ def write_comparison(paths, out: Path, episodes: str = "held-out", baseline: dic
     return write_report(comparison(paths, episodes, baseline), out)
 
 
+def requested_comparison(args: argparse.Namespace) -> Comparison:
+    """The ``comparison`` that ``compare``'s parsed command line ``args`` asks for, written nowhere
+    (UserError for a bad --baseline, --holm or --per-seed-lambda)."""
+    return comparison(args.paths, args.episodes, parse_baseline(args.baseline), parse_holm(args.holm),
+                      parse_per_seed_lambda(args.per_seed_lambda))
+
+
 def main(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else default_out(args.paths)
-    # a bad --baseline, --holm or --per-seed-lambda writes nothing
-    report = comparison(args.paths, args.episodes, parse_baseline(args.baseline), parse_holm(args.holm),
-                        parse_per_seed_lambda(args.per_seed_lambda))
+    report = requested_comparison(args)  # a bad option writes nothing
     figures = overlay_figures(args.paths, out)  # reads every metrics.csv before it writes: a bad one writes nothing
     markdown = write_report(report, out)
     print(markdown)
