@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from lifelong_evo.config import parse_schedule
+
 DATA = Path(__file__).resolve().parents[1] / "docs/data"
 EARLIER = {"paper-claim": DATA / "paper-genetics"}
 """Each part of the study -> the earlier study whose runs of the same name it repeats."""
@@ -53,7 +55,7 @@ def test_a_study_run_repeats_its_earlier_run_and_keeps_its_controllers(run):
         else:
             assert cells == DEVIATIONS.get(name, {})
     summary = json.loads((run / "summary.json").read_text())
-    assert len(summary["phases"]) == 3 and summary["held_out"]["episodes"] == 100
+    assert len(summary["phases"]) == len(_phases(run)) and summary["held_out"]["episodes"] == 100
     kept = {path.stem for path in (run / "controllers").glob("*.json")}
     assert {key for key in summary["held_out"]["scores"]} <= kept
 
@@ -88,8 +90,14 @@ def test_a_run_that_took_over_a_first_task_repeats_it(run):
     rows, source_rows = ((run / "metrics.csv").read_text().splitlines(), (sources[0] / "metrics.csv").read_text().splitlines())
     task_index = rows[0].split(",").index("task_index")
     first_task = [row for row in rows[1:] if row.split(",")[task_index] == "0"]
-    assert len(first_task) == 200
+    assert len(first_task) == _phases(run)[0].generations
     assert first_task == [row for row in source_rows[1:] if row.split(",")[task_index] == "0"]
+
+
+def _phases(run: Path) -> list:
+    """The schedule's phases of ``run``, from its config.json."""
+    config = json.loads((run / "config.json").read_text())
+    return parse_schedule(config["schedule"], config["generations"])
 
 
 def _differing_cells(path, earlier) -> dict[int, dict[str, tuple[str, str]]]:
