@@ -17,8 +17,10 @@ import pytest
 from lifelong_evo.config import parse_schedule
 
 DATA = Path(__file__).resolve().parents[1] / "docs/data"
-EARLIER = {"paper-claim": DATA / "paper-genetics"}
-"""Each part of the study -> the earlier study whose runs of the same name it repeats."""
+EARLIER = {"paper-claim": (DATA / "paper-genetics", {}),
+           "families": (DATA / "families", {"reg0-": "sep-cmaes-reg0-", "reg100-": "sep-cmaes-reg100-importancel2-"})}
+"""Each part of the study -> the earlier study whose runs it repeats, and how a trial's name there
+begins where the two name the same configuration differently."""
 DEVIATIONS: dict[str, dict[int, dict[str, tuple[str, str]]]] = {
     # docs/results.md, "Lambda 11 on seed 31 does not repeat its earlier run in one generation"
     "paper-claim/reg11-seed31": {521: {"mean": ("5.53833332096537", "5.537333323508501"),
@@ -46,9 +48,9 @@ def test_the_study_has_data():
 
 @pytest.mark.parametrize("run", RUNS, ids=lambda path: f"{path.parent.name}/{path.name}")
 def test_a_study_run_repeats_its_earlier_run_and_keeps_its_controllers(run):
-    earlier = EARLIER.get(run.parent.name, DATA / "none") / run.name
+    earlier = _earlier_run(run)
     name = f"{run.parent.name}/{run.name}"
-    if earlier.is_dir():
+    if earlier is not None:
         cells = _differing_cells(run / "metrics.csv", earlier / "metrics.csv")
         if name in ANOTHER_CPU:
             assert 0 in cells and cells[0]["mean"] == ANOTHER_CPU[name]
@@ -61,19 +63,20 @@ def test_a_study_run_repeats_its_earlier_run_and_keeps_its_controllers(run):
 
 
 def test_the_status_counts_the_runs_kept():
-    """docs/results.md's status of part 1 and its reproducibility check are counted from the data:
-    the runs kept, and those of them with an earlier run, passed where they differ in no cell."""
+    """docs/results.md's status of each part and the reproducibility checks of parts 1 and 4 are
+    counted from the data: the runs kept, and those of them with an earlier run, passed where they
+    differ in no cell."""
     import re
 
     text = (DATA.parent / "results.md").read_text()
-    kept = [run for run in RUNS if run.parent.name == "paper-claim"]
-    for part, folder, planned in [(1, "paper-claim", 30), (2, "ms-lambda", 5), (3, "neat-lambda-grid", 8)]:
+    for part, folder, planned in [(1, "paper-claim", 30), (2, "ms-lambda", 5), (3, "neat-lambda-grid", 8), (4, "families", 30)]:
         (finished,) = re.findall(rf"Part {part}:\s+(\d+) of {planned}\b", text)
         assert int(finished) == sum(run.parent.name == folder for run in RUNS), part
-    repeated = [run for run in kept if (EARLIER["paper-claim"] / run.name).is_dir()]
     not_repeated = DEVIATIONS.keys() | ANOTHER_CPU.keys()
-    passed = len(repeated) - sum(f"paper-claim/{run.name}" in not_repeated for run in repeated)
-    assert f"The reproducibility check: {passed} of {len(repeated)} passed" in text
+    for sentence, folder in [("The reproducibility check", "paper-claim"), ("Part 4's reproducibility check", "families")]:
+        repeated = [run for run in RUNS if run.parent.name == folder and _earlier_run(run) is not None]
+        passed = len(repeated) - sum(f"{folder}/{run.name}" in not_repeated for run in repeated)
+        assert not repeated or re.search(rf"{sentence}:\s+{passed} of\s+{len(repeated)} passed", text), folder
 
 
 @pytest.mark.parametrize("run", [run for run in RUNS if json.loads((run / "summary.json").read_text())
@@ -90,6 +93,15 @@ def test_a_run_that_took_over_a_first_task_repeats_it(run):
     first_task = [row for row in rows[1:] if row.split(",")[task_index] == "0"]
     assert len(first_task) == _phases(run)[0].generations
     assert first_task == [row for row in source_rows[1:] if row.split(",")[task_index] == "0"]
+
+
+def _earlier_run(run: Path) -> Path | None:
+    """The earlier run of ``run``'s configuration and seed, where its part repeats one."""
+    if run.parent.name not in EARLIER:
+        return None
+    folder, renames = EARLIER[run.parent.name]
+    name = next((new + run.name[len(old):] for old, new in renames.items() if run.name.startswith(old)), run.name)
+    return folder / name if (folder / name).is_dir() else None
 
 
 def _phases(run: Path) -> list:
