@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -76,8 +77,6 @@ def test_the_status_counts_the_runs_kept():
     """docs/results.md's status of each part and the reproducibility checks of parts 1 and 4 are
     counted from the data: the runs kept, and those of them with an earlier run, passed where they
     differ in no cell."""
-    import re
-
     text = (DATA.parent / "results.md").read_text()
     for part, folder, planned in [(1, "paper-claim", 30), (2, "ms-lambda", 5), (3, "neat-lambda-grid", 8), (4, "families", 30)]:
         (finished,) = re.findall(rf"Part {part}:\s+(\d+) of {planned}\b", text)
