@@ -86,7 +86,7 @@ def test_the_status_counts_the_runs_kept():
     for sentence, folder in [("The reproducibility check", "paper-claim"), ("Part 4's reproducibility check", "families")]:
         repeated = [run for run in RUNS if run.parent.name == folder and _earlier_run(run) is not None]
         passed = len(repeated) - sum(f"{folder}/{run.name}" in not_repeated for run in repeated)
-        assert not repeated or re.search(rf"{sentence}:\s+{passed} of\s+{len(repeated)} passed", text), folder
+        assert not repeated or re.search(rf"{sentence}:\s+{passed}\s+of\s+{len(repeated)}\s+passed", text), folder
 
 
 @pytest.mark.parametrize("run", [run for run in RUNS if json.loads((run / "summary.json").read_text())
