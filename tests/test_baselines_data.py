@@ -2,7 +2,8 @@
 in docs/data/baselines and the deciding study's runs it reuses (``REUSED``). Each is its trial of
 examples/sweep_baselines.toml (the settings `sweep` would resume it with), keeps what the held-out
 protocol needs, the grid's own runs were made on one kind of CPU (the plan's rule), a run that took
-over a first task repeats it byte for byte, and the baselines' status counts the runs kept."""
+over a first task repeats it byte for byte, a whole run repeats the first task an earlier run on
+that CPU played (``SAME_FIRST_TASK``), and the baselines' status counts the runs kept."""
 from __future__ import annotations
 
 import json
@@ -24,6 +25,10 @@ REUSED = {**{f"sep-cmaes-reg0-seed{s}": DATA / f"study/families/reg0-seed{s}" fo
           **{f"neat-reg11-seed{s}": DATA / f"study/paper-claim/reg11-seed{s}" for s in (13, 24)}}
 """The grid's trials whose runs are the deciding study's (docs/results.md, the baselines plan's
 additions of 2026-11-28 and 2026-11-29): trial -> the study run kept in docs/data/study."""
+SAME_FIRST_TASK = {f"neat-reg0-seed{s}": DATA / f"study/ms-lambda/seed{s}" for s in (42, 17, 31)}
+"""Grid runs that play their first task themselves, and an earlier run on the same kind of CPU
+(part 2's lambda = 5 runs of those seeds, whole runs on the Intel VM at the study's commit) played
+the same first task: the regulariser acts only after it, so the two must agree byte for byte."""
 GRID_CPU = {"cpu": "Intel(R) Xeon(R) Processor (family 6, model 167)", "vector_isa": "AVX512"}
 """The kind of CPU the grid runs on (docs/results.md, the baselines' status)."""
 OWN = sorted(path for path in (DATA / "baselines").glob("*") if (path / "metrics.csv").is_file())
@@ -68,12 +73,23 @@ def test_a_run_that_took_over_a_first_task_repeats_it(run):
     source = _kept(Path(json.loads((run / "summary.json").read_text())["first_task_from"]))
     if source is None:
         pytest.skip("the run it started from is not kept")
-    rows, source_rows = (path.joinpath("metrics.csv").read_text().splitlines() for path in (run, source))
+    assert _first_task_rows(run) == _first_task_rows(source)
+
+
+@pytest.mark.parametrize("run", [run for run in OWN if run.name in SAME_FIRST_TASK], ids=lambda path: path.name)
+def test_a_whole_run_repeats_the_first_task_an_earlier_run_on_its_cpu_played(run):
+    assert not json.loads((run / "summary.json").read_text()).get("first_task_from")
+    assert _first_task_rows(run) == _first_task_rows(SAME_FIRST_TASK[run.name])
+
+
+def _first_task_rows(run: Path) -> list[str]:
+    """metrics.csv's rows of the schedule's first task, as written; as many as it has generations."""
+    rows = (run / "metrics.csv").read_text().splitlines()
     task_index = rows[0].split(",").index("task_index")
-    first_task = [row for row in rows[1:] if row.split(",")[task_index] == "0"]
+    first_task = [rows[0]] + [row for row in rows[1:] if row.split(",")[task_index] == "0"]
     config = json.loads((run / "config.json").read_text())
-    assert len(first_task) == parse_schedule(config["schedule"], config["generations"])[0].generations
-    assert first_task == [row for row in source_rows[1:] if row.split(",")[task_index] == "0"]
+    assert len(first_task) - 1 == parse_schedule(config["schedule"], config["generations"])[0].generations
+    return first_task
 
 
 def _kept(started_from: Path) -> Path | None:
