@@ -14,8 +14,8 @@ import pytest
 
 from lifelong_evo.commands.cli import build_parser
 from lifelong_evo.commands.grid import build_grid
-from lifelong_evo.config import parse_schedule
 from lifelong_evo.rundir import RunDir
+from tests.run_data import assert_keeps_what_held_out_scoring_needs, first_task_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "docs/data"
@@ -53,12 +53,7 @@ def test_the_grid_and_the_reused_runs_are_the_plans():
 def test_a_kept_run_is_its_trial_and_keeps_its_controllers(name):
     run = KEPT[name]
     assert RunDir(run).setting_differences(TRIALS[name].config.to_dict()) == []
-    summary = json.loads((run / "summary.json").read_text())
-    config = json.loads((run / "config.json").read_text())
-    assert len(summary["phases"]) == len(parse_schedule(config["schedule"], config["generations"]))
-    assert summary["held_out"]["episodes"] == 100
-    kept = {path.stem for path in (run / "controllers").glob("*.json")}
-    assert summary["held_out"]["scores"] and set(summary["held_out"]["scores"]) <= kept
+    assert_keeps_what_held_out_scoring_needs(run)
 
 
 @pytest.mark.parametrize("run", OWN, ids=lambda path: path.name)
@@ -73,23 +68,13 @@ def test_a_run_that_took_over_a_first_task_repeats_it(run):
     source = _kept(Path(json.loads((run / "summary.json").read_text())["first_task_from"]))
     if source is None:
         pytest.skip("the run it started from is not kept")
-    assert _first_task_rows(run) == _first_task_rows(source)
+    assert first_task_rows(run) == first_task_rows(source)
 
 
 @pytest.mark.parametrize("run", [run for run in OWN if run.name in SAME_FIRST_TASK], ids=lambda path: path.name)
 def test_a_whole_run_repeats_the_first_task_an_earlier_run_on_its_cpu_played(run):
     assert not json.loads((run / "summary.json").read_text()).get("first_task_from")
-    assert _first_task_rows(run) == _first_task_rows(SAME_FIRST_TASK[run.name])
-
-
-def _first_task_rows(run: Path) -> list[str]:
-    """metrics.csv's rows of the schedule's first task, as written; as many as it has generations."""
-    rows = (run / "metrics.csv").read_text().splitlines()
-    task_index = rows[0].split(",").index("task_index")
-    first_task = [rows[0]] + [row for row in rows[1:] if row.split(",")[task_index] == "0"]
-    config = json.loads((run / "config.json").read_text())
-    assert len(first_task) - 1 == parse_schedule(config["schedule"], config["generations"])[0].generations
-    return first_task
+    assert first_task_rows(run) == first_task_rows(SAME_FIRST_TASK[run.name])
 
 
 def _kept(started_from: Path) -> Path | None:

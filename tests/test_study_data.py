@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from lifelong_evo.config import parse_schedule
+from tests.run_data import assert_keeps_what_held_out_scoring_needs, first_task_rows
 
 DATA = Path(__file__).resolve().parents[1] / "docs/data"
 EARLIER = {"paper-claim": (DATA / "paper-genetics", {}),
@@ -68,10 +68,7 @@ def test_a_study_run_repeats_its_earlier_run_and_keeps_its_controllers(run):
             assert 0 in cells and cells[0]["mean"] == ANOTHER_CPU[name]
         else:
             assert cells == DEVIATIONS.get(name, {})
-    summary = json.loads((run / "summary.json").read_text())
-    assert len(summary["phases"]) == len(_phases(run)) and summary["held_out"]["episodes"] == 100
-    kept = {path.stem for path in (run / "controllers").glob("*.json")}
-    assert {key for key in summary["held_out"]["scores"]} <= kept
+    assert_keeps_what_held_out_scoring_needs(run)
 
 
 def test_the_status_counts_the_runs_kept():
@@ -100,11 +97,7 @@ def test_a_run_that_took_over_a_first_task_repeats_it(run):
     source = DATA / "study" / started_from.parent.name.removeprefix("study-") / started_from.name
     if not (source / "metrics.csv").is_file():
         pytest.skip(f"the run it started from, {started_from}, is not kept")
-    rows, source_rows = ((run / "metrics.csv").read_text().splitlines(), (source / "metrics.csv").read_text().splitlines())
-    task_index = rows[0].split(",").index("task_index")
-    first_task = [row for row in rows[1:] if row.split(",")[task_index] == "0"]
-    assert len(first_task) == _phases(run)[0].generations
-    assert first_task == [row for row in source_rows[1:] if row.split(",")[task_index] == "0"]
+    assert first_task_rows(run) == first_task_rows(source)
 
 
 def _earlier_run(run: Path) -> Path | None:
@@ -114,12 +107,6 @@ def _earlier_run(run: Path) -> Path | None:
     folder, renames = EARLIER[run.parent.name]
     name = next((new + run.name[len(old):] for old, new in renames.items() if run.name.startswith(old)), run.name)
     return folder / name if (folder / name).is_dir() else None
-
-
-def _phases(run: Path) -> list:
-    """The schedule's phases of ``run``, from its config.json."""
-    config = json.loads((run / "config.json").read_text())
-    return parse_schedule(config["schedule"], config["generations"])
 
 
 def _differing_cells(path, earlier) -> dict[int, dict[str, tuple[str, str]]]:
