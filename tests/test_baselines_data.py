@@ -1,9 +1,10 @@
 """What docs/results.md says of the baselines' data, checked on the data kept: the grid's own runs
 in docs/data/baselines and the deciding study's runs it reuses (``REUSED``). Each is its trial of
 examples/sweep_baselines.toml (the settings `sweep` would resume it with), keeps what the held-out
-protocol needs, the grid's own runs were made on one kind of CPU (the plan's rule), a run that took
-over a first task repeats it byte for byte, a whole run repeats the first task an earlier run on
-that CPU played (``SAME_FIRST_TASK``), and the baselines' status counts the runs kept."""
+protocol needs, the runs of one family and seed were made on the one kind of CPU the plan gives
+that seed (``PLANNED_CPU``), a run that took over a first task repeats it byte for byte, a whole run
+repeats the first task an earlier run on its CPU played (``SAME_FIRST_TASK``), and the baselines'
+status counts the runs kept."""
 from __future__ import annotations
 
 import json
@@ -25,12 +26,16 @@ REUSED = {**{f"sep-cmaes-reg0-seed{s}": DATA / f"study/families/reg0-seed{s}" fo
           **{f"neat-reg11-seed{s}": DATA / f"study/paper-claim/reg11-seed{s}" for s in (13, 24)}}
 """The grid's trials whose runs are the deciding study's (docs/results.md, the baselines plan's
 additions of 2026-11-28 and 2026-11-29): trial -> the study run kept in docs/data/study."""
+INTEL = {"cpu": "Intel(R) Xeon(R) Processor (family 6, model 167)", "vector_isa": "AVX512"}
+AMD_ZEN4 = {"cpu": "AMD EPYC (family 25, model 17)", "vector_isa": "AVX512"}
+PLANNED_CPU = {("neat", 17): AMD_ZEN4, ("neat", 31): AMD_ZEN4}
+"""The kind of CPU of each family and seed whose runs are not on the Intel VM (docs/results.md, the
+baselines plan's addition of 2026-12-01); every other family and seed, the reused study runs
+included, is the Intel VM's."""
 SAME_FIRST_TASK = {f"neat-reg0-seed{s}": DATA / f"study/ms-lambda/seed{s}" for s in (42, 17, 31)}
-"""Grid runs that play their first task themselves, and an earlier run on the same kind of CPU
-(part 2's lambda = 5 runs of those seeds, whole runs on the Intel VM at the study's commit) played
-the same first task: the regulariser acts only after it, so the two must agree byte for byte."""
-GRID_CPU = {"cpu": "Intel(R) Xeon(R) Processor (family 6, model 167)", "vector_isa": "AVX512"}
-"""The kind of CPU the grid runs on (docs/results.md, the baselines' status)."""
+"""Grid runs that play their first task themselves, and an earlier run on the Intel VM (part 2's
+lambda = 5 runs of those seeds, whole runs at the study's commit) played the same first task: the
+regulariser acts only after it, so on that CPU the two must agree byte for byte."""
 OWN = sorted(path for path in (DATA / "baselines").glob("*") if (path / "metrics.csv").is_file())
 KEPT = {**{run.name: run for run in OWN}, **REUSED}
 
@@ -56,10 +61,25 @@ def test_a_kept_run_is_its_trial_and_keeps_its_controllers(name):
     assert_keeps_what_held_out_scoring_needs(run)
 
 
-@pytest.mark.parametrize("run", OWN, ids=lambda path: path.name)
-def test_the_grids_own_runs_ran_on_one_kind_of_cpu(run):
+def _planned_cpu(run: Path) -> dict:
+    config = json.loads((run / "config.json").read_text())
+    return PLANNED_CPU.get((config["algo"], config["seed"]), INTEL)
+
+
+def _cpus(run: Path) -> list[dict]:
+    """The kind of CPU of every machine a grid run played on (summary.json's ``machines``)."""
     machines = json.loads((run / "summary.json").read_text())["machines"]
-    assert machines and all({key: m[key] for key in GRID_CPU} == GRID_CPU for m in machines)
+    return [{key: machine[key] for key in INTEL} for machine in machines]
+
+
+@pytest.mark.parametrize("run", OWN, ids=lambda path: path.name)
+def test_each_grid_run_ran_on_the_cpu_the_plan_gives_its_family_and_seed(run):
+    cpus = _cpus(run)
+    assert cpus and all(cpu == _planned_cpu(run) for cpu in cpus)
+
+
+def test_the_reused_study_runs_are_of_seeds_the_plan_keeps_on_the_intel_vm():
+    assert all(_planned_cpu(run) == INTEL for run in REUSED.values())
 
 
 @pytest.mark.parametrize("run", [run for run in OWN if json.loads((run / "summary.json").read_text())
@@ -71,7 +91,8 @@ def test_a_run_that_took_over_a_first_task_repeats_it(run):
     assert first_task_rows(run) == first_task_rows(source)
 
 
-@pytest.mark.parametrize("run", [run for run in OWN if run.name in SAME_FIRST_TASK], ids=lambda path: path.name)
+@pytest.mark.parametrize("run", [run for run in OWN if run.name in SAME_FIRST_TASK and _cpus(run) == [INTEL]],
+                         ids=lambda path: path.name)
 def test_a_whole_run_repeats_the_first_task_an_earlier_run_on_its_cpu_played(run):
     assert not json.loads((run / "summary.json").read_text()).get("first_task_from")
     assert first_task_rows(run) == first_task_rows(SAME_FIRST_TASK[run.name])
