@@ -450,3 +450,38 @@ def test_first_task_from_needs_share_first_task(tmp_path, capsys):
     assert main(["sweep", "--algo", "neat", *SMOKE, "--out", str(tmp_path), "--share-first-task", "--together",
                  "--eval-threads", "1"]) == 2
     assert "drop one of them" in capsys.readouterr().err
+
+
+def test_only_runs_the_picked_trials_and_leaves_the_others_as_they_are(tmp_path, capsys):
+    """--only: the trials whose names match a pattern run, the others are neither run nor resumed
+    nor, with --overwrite, restarted; a later sweep without it runs the rest and skips the picked."""
+    grid = ["sweep", "--algo", "neat", "--reg", "0,2", "--seed", "4,5", "--schedule", "red:2,green:2", *SMOKE,
+            "--eval-threads", "1", "--together", "--out", str(tmp_path), "--name", "part"]
+    assert main([*grid, "--only", "reg0-*", "--only", "reg2-seed5", "--dry-run"]) == 0
+    printed = capsys.readouterr().out
+    assert [line.split()[-1] for line in printed.splitlines() if line.startswith("would run")] == [
+        "reg0-seed4", "reg0-seed5", "reg2-seed5"]
+    assert "left    reg2-seed4 (not picked by --only)" in printed
+    assert main([*grid, "--only", "*-seed4"]) == 0
+    assert sorted(p.name for p in (tmp_path / "part").iterdir() if p.is_dir()) == ["reg0-seed4", "reg2-seed4"]
+    assert {name: row["status"] for name, row in _trials(tmp_path / "part").items()} == {
+        "reg0-seed4": "done", "reg2-seed4": "done", "reg0-seed5": "pending", "reg2-seed5": "pending"}
+    kept = (tmp_path / "part/reg0-seed4/metrics.csv").stat().st_mtime_ns
+    assert main([*grid, "--only", "reg0-seed5,reg2-seed5", "--overwrite"]) == 0
+    assert (tmp_path / "part/reg0-seed4/metrics.csv").stat().st_mtime_ns == kept
+    assert {row["status"] for row in _trials(tmp_path / "part").values()} == {"done"}
+    capsys.readouterr()
+    assert main(grid) == 0
+    assert "skipped reg2-seed5 (done)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("patterns, says", [
+    (["neat-*-seed9"], "--only 'neat-*-seed9' matches none of the grid's 2 trials"),
+    (["seed4,"], "--only has an empty pattern"),
+])
+def test_only_refuses_a_pattern_that_picks_nothing_before_writing(patterns, says, tmp_path, capsys):
+    argv = ["sweep", "--algo", "neat", "--seed", "4,5", *SMOKE, "--out", str(tmp_path), "--name", "t"]
+    assert main([*argv, *(item for p in patterns for item in ("--only", p))]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and says in err
+    assert not (tmp_path / "t").exists()

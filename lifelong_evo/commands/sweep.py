@@ -18,8 +18,9 @@ time), ``comparison.md`` and ``.csv`` (``compare``'s tables of the sweep: each c
 regulariser against lambda 0, plus the model-specific lambda rows)
 and ``ray.log`` (Ray's messages).
 
-Running the same command again skips finished trials and resumes unfinished ones from their
-checkpoints (``--overwrite`` restarts every trial; like run's, it deletes only a directory that
+``--only PATTERN`` runs only the trials whose names match one of the shell patterns (the part of a
+grid meant for this machine) and leaves the others as they are. Running the same command again
+skips finished trials and resumes unfinished ones from their checkpoints (``--overwrite`` restarts every trial; like run's, it deletes only a directory that
 lifelong-evo wrote). Each trial holds its run directory's lock while it runs (``rundir.RunLock``):
 a trial another process is running is refused before anything is written. A failed trial is
 recorded and the others go on; Ctrl-C cancels the running trials (their checkpoints are kept)
@@ -54,6 +55,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import fnmatch
 import io
 import json
 import shutil
@@ -117,6 +119,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "schedule saved); the other runs: this sweep's trials (lambda 0 first) and --first-task-from")
     parser.add_argument("--first-task-from", action="append", default=[], metavar="DIR",
                         help="with --share-first-task: also take first tasks from the runs under this folder (repeatable)")
+    parser.add_argument("--only", action="append", default=[], metavar="PATTERN[,PATTERN...]",
+                        help="run only the trials whose names match one of these shell patterns, e.g. "
+                             "'neat-*-seed17' (repeatable); the others are left as they are, and --overwrite "
+                             "restarts only these")
     parser.add_argument("--dry-run", action="store_true", help="list the trials and their state, run nothing")
 
 
@@ -182,6 +188,26 @@ def run_trial(config_values: dict[str, Any], path: str, overwrite: bool, memory_
                 "first_task_from": "" if source is None else str(source.path)}
     except Exception as error:  # noqa: BLE001 - the driver records it and goes on
         return {"status": "failed", "error": one_line(error), "wall_time_s": time.monotonic() - started}
+
+
+def picked_trials(grid: Grid, patterns: Sequence[str]) -> set[str]:
+    """The names of the trials ``--only`` picks: every trial without patterns, else those whose
+    names match one of the comma-separated shell patterns (``fnmatch``, case-sensitive). A pattern
+    that matches no trial is refused: misspelt, it would quietly run nothing it was meant to."""
+    names = [trial.name for trial in grid.trials]
+    if not patterns:
+        return set(names)
+    picked: set[str] = set()
+    for pattern in (piece.strip() for item in patterns for piece in item.split(",")):
+        if not pattern:
+            raise UserError("--only has an empty pattern: give trial names or shell patterns such as "
+                            "neat-*-seed17, separated by commas")
+        matched = [name for name in names if fnmatch.fnmatchcase(name, pattern)]
+        if not matched:
+            raise UserError(f"--only {pattern!r} matches none of the grid's {len(names)} trials: "
+                            "the same command with --dry-run and without --only lists them")
+        picked.update(matched)
+    return picked
 
 
 def is_complete(summary: dict[str, Any] | None, config: RunConfig) -> bool:
@@ -272,17 +298,19 @@ def main(args: argparse.Namespace) -> int:
     grid.name = default_sweep_name(grid) if grid.name is None else grid.name
     sweep_dir = (check_out_folder(args.out) / grid.name).resolve()
     check_sweep_folder(sweep_dir)
+    picked = picked_trials(grid, args.only)
     to_run: list[Trial] = []
     resuming: set[str] = set()
     for trial in grid.trials:
-        state, why = ("new", "") if args.overwrite else trial_state(sweep_dir / trial.name, trial.config)
+        restart = args.overwrite and trial.name in picked
+        state, why = ("new", "") if restart else trial_state(sweep_dir / trial.name, trial.config)
         if state == "done":
             summary = RunDir(sweep_dir / trial.name).read_summary()
             trial.status, trial.wall_time_s = "done", summary["wall_time_s"]
             trial.first_task_from = summary.get("first_task_from", "")
         elif state == "failed":
             trial.status, trial.error = "failed", why
-        else:
+        elif trial.name in picked:
             to_run.append(trial)
             if state == "resume":
                 resuming.add(trial.name)
@@ -301,6 +329,8 @@ def main(args: argparse.Namespace) -> int:
             _print(f"failed  {trial.name}: {trial.error}")
         elif trial.name in resuming:
             _print(f"resume  {trial.name} (from its last checkpoint)")
+        elif trial.name not in picked:
+            _print(f"left    {trial.name} (not picked by --only)")
     if args.together:
         _check_together(args, to_run)
     if args.first_task_from and not args.share_first_task:
