@@ -24,8 +24,10 @@ stores every new state through ``_start``, steps through ``_run_step`` and, in
 """
 from __future__ import annotations
 
+import functools
 import threading
 from dataclasses import replace
+from typing import Callable
 
 import torch
 import torch._dynamo
@@ -42,21 +44,36 @@ GRAPH_WARM_UP_STEPS = 3
 
 
 def compile_every_batch_size() -> None:
-    """Let a process compile the step for up to ``COMPILED_BATCH_SIZES`` batch sizes, and make
-    going past that an error (process-wide: these are ``torch._dynamo.config``'s settings).
+    """Let the step compile for up to ``COMPILED_BATCH_SIZES`` batch sizes, and make going past
+    that an error, in the calling thread: ``torch._dynamo.config``'s settings are the thread's
+    own (each one a context variable), and a new thread starts from dynamo's defaults.
 
-    By default dynamo compiles a function for at most 8 input shapes and then runs further
-    shapes eagerly, with only a warning. Eager rounds some floats differently from the compiled
-    step, so an evaluation's numbers would depend on which batch sizes the process had met
-    before: a run resumed in a fresh process, or a sweep trial that follows another in the same
-    worker, could score a generation differently from the same run played straight through.
-    (NEAT under 0.92's genetics meets about ten batch sizes: its population drifts around
-    ``pop_size``, and retention and held-out evaluations add more.)"""
+    By default dynamo compiles a function for at most 8 input shapes, counted over the whole
+    process, and then runs further shapes eagerly, with only a warning. Eager rounds some floats
+    differently from the compiled step, so an evaluation's numbers would depend on which batch
+    sizes the process had met before: a run resumed in a fresh process, or a sweep trial that
+    follows another in the same worker, could score a generation differently from the same run
+    played straight through. (NEAT under 0.92's genetics meets about ten batch sizes: its
+    population drifts around ``pop_size``, and retention and held-out evaluations add more.)"""
     dynamo = torch._dynamo.config
     dynamo.recompile_limit = max(dynamo.recompile_limit, COMPILED_BATCH_SIZES)
     # both graphs of the step count against the process's total
     dynamo.accumulated_recompile_limit = max(dynamo.accumulated_recompile_limit, 2 * COMPILED_BATCH_SIZES)
     dynamo.fail_on_recompile_limit_hit = True
+
+
+def in_every_thread(compiled: Callable) -> Callable:
+    """``compiled`` (a ``torch.compile`` function) called with ``compile_every_batch_size``'s
+    settings in force in whichever thread calls it. An environment compiled in one thread and
+    stepped in another (an evaluation thread of a later generation, a sweep's next trial) would
+    otherwise meet that thread's defaults: a ninth batch size would run eagerly, silently."""
+    @functools.wraps(compiled)
+    def call(*args, **kwargs):
+        dynamo = torch._dynamo.config
+        if not (dynamo.fail_on_recompile_limit_hit and dynamo.recompile_limit >= COMPILED_BATCH_SIZES):
+            compile_every_batch_size()
+        return compiled(*args, **kwargs)
+    return call
 
 
 class StepExecution:
@@ -76,17 +93,17 @@ class StepExecution:
     def compile(self) -> None:
         """Compile the step with ``torch.compile``, as the two fused graphs around the rare
         pick conflicts: moving and reaching, then settling and sensing (static shapes: each
-        batch size compiles once, every one of them: ``compile_every_batch_size``). Observations
-        outside ``step`` stay eager.
+        batch size compiles once, every one of them, whichever thread steps it:
+        ``in_every_thread``). Observations outside ``step`` stay eager.
 
         The graphs run under inductor's C++ wrapper, which releases the GIL: several Python
         threads, each stepping its own environment, then run in parallel (see
         ``lifelong_evo.evaluate``)."""
-        compile_every_batch_size()
         # every gather index is clamped into range, so inductor's per-element index checks can go
         options = {"assert_indirect_indexing": False, "cpp_wrapper": True}
-        self._move_and_reach = torch.compile(self._move_and_reach, dynamic=False, options=options)
-        self._settle_and_sense = torch.compile(self._settle_and_sense, dynamic=False, options=options)
+        self._move_and_reach = in_every_thread(torch.compile(self._move_and_reach, dynamic=False, options=options))
+        self._settle_and_sense = in_every_thread(torch.compile(self._settle_and_sense, dynamic=False,
+                                                               options=options))
         self._graph = None  # a graph captured before would replay the eager step: capture again
 
     def graph_step(self, capture: bool | None = None) -> None:

@@ -740,6 +740,33 @@ def test_every_batch_size_compiles_whatever_the_process_compiled_before():
     assert torch._dynamo.config.fail_on_recompile_limit_hit
 
 
+def test_every_batch_size_compiles_in_a_thread_that_did_not_compile_it():
+    """Dynamo's settings are each thread's own: an environment compiled in one thread and stepped
+    in another (an evaluation thread of a later generation) still compiles its batch size, however
+    many the process compiled before, and never drops to eager. The stepping thread here starts
+    from dynamo's limit lowered to 1, as if the process had used it up."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    config = ForagingConfig(n_boxes=6, max_retrieves=2, duration=10)
+    envs = [ForagingEnv(config, batch_size=batch_size, dtype=F64) for batch_size in (3, 4)]
+    for env in envs:
+        env.compile()
+
+    def first_steps() -> list[int]:
+        torch._dynamo.config.recompile_limit = 1
+        torch._dynamo.config.fail_on_recompile_limit_hit = False
+        new_graphs = []
+        for env in envs:
+            before = counters["stats"]["unique_graphs"]
+            env.reset(state=env.sample_state(TASKS["red"], torch.Generator().manual_seed(3)))
+            env.step(torch.zeros(env.batch_size, config.n_agents, 3, dtype=F64))
+            new_graphs.append(counters["stats"]["unique_graphs"] - before)
+        return new_graphs
+
+    with ThreadPoolExecutor(1) as pool:
+        assert pool.submit(first_steps).result() == [2, 2], "each batch size compiles both graphs of the step"
+
+
 @pytest.mark.parametrize("compiled", [False, True], ids=["eager", "compiled"])
 def test_in_place_step_for_cuda_graphs_equals_the_plain_step(compiled):
     """``graph_step``'s step (fixed buffers, no wait for the device: what a CUDA graph replays,
