@@ -20,8 +20,8 @@ and ``ray.log`` (Ray's messages).
 
 ``--only PATTERN`` runs only the trials whose names match one of the shell patterns (the part of a
 grid meant for this machine) and leaves the others as they are. Running the same command again
-skips finished trials and resumes unfinished ones from their checkpoints (``--overwrite`` restarts every trial; like run's, it deletes only a directory that
-lifelong-evo wrote). Each trial holds its run directory's lock while it runs (``rundir.RunLock``):
+skips finished trials and resumes unfinished ones from their checkpoints (``--overwrite``
+restarts every trial picked; like run's, it deletes only a directory that lifelong-evo wrote). Each trial holds its run directory's lock while it runs (``rundir.RunLock``):
 a trial another process is running is refused before anything is written. A failed trial is
 recorded and the others go on; Ctrl-C cancels the running trials (their checkpoints are kept)
 and exits with 130, SIGTERM likewise with 143. Before anything is written, the trials that would
