@@ -2,11 +2,12 @@
 in docs/data/baselines and the deciding study's runs it reuses (``REUSED``). Each is its trial of
 examples/sweep_baselines.toml (the settings `sweep` would resume it with), keeps what the held-out
 protocol needs, the runs of one family and seed were made on the one kind of CPU the plan gives
-that seed (``PLANNED_CPU``), a run that took over a first task repeats it byte for byte, a whole run
-repeats the first task an earlier run on its CPU played (``SAME_FIRST_TASK``), and the baselines'
-status counts the runs kept."""
+that seed (``PLANNED_CPU``), a run that took over a first task repeats it byte for byte, runs that
+share a first task on one kind of CPU play it alike, taken over or each by itself, and the
+baselines' status counts the runs kept."""
 from __future__ import annotations
 
+import itertools
 import json
 import re
 from pathlib import Path
@@ -32,10 +33,10 @@ PLANNED_CPU = {("neat", 17): AMD_ZEN4, ("neat", 31): AMD_ZEN4}
 """The kind of CPU of each family and seed whose runs are not on the Intel VM (docs/results.md, the
 baselines plan's addition of 2026-12-01); every other family and seed, the reused study runs
 included, is the Intel VM's."""
-SAME_FIRST_TASK = {f"neat-reg0-seed{s}": DATA / f"study/ms-lambda/seed{s}" for s in (42, 17, 31)}
-"""Grid runs that play their first task themselves, and an earlier run on the Intel VM (part 2's
-lambda = 5 runs of those seeds, whole runs at the study's commit) played the same first task: the
-regulariser acts only after it, so on that CPU the two must agree byte for byte."""
+EARLIER_ON_INTEL = [DATA / f"study/ms-lambda/seed{s}" for s in (42, 17, 31)]
+"""Study runs that are no trial of the grid but share a first task with some: part 2's lambda = 5
+runs of those seeds, whole runs on the Intel VM at the study's commit (the regulariser acts only
+after the first task)."""
 OWN = sorted(path for path in (DATA / "baselines").glob("*") if (path / "metrics.csv").is_file())
 KEPT = {**{run.name: run for run in OWN}, **REUSED}
 
@@ -91,11 +92,26 @@ def test_a_run_that_took_over_a_first_task_repeats_it(run):
     assert first_task_rows(run) == first_task_rows(source)
 
 
-@pytest.mark.parametrize("run", [run for run in OWN if run.name in SAME_FIRST_TASK and _cpus(run) == [INTEL]],
-                         ids=lambda path: path.name)
-def test_a_whole_run_repeats_the_first_task_an_earlier_run_on_its_cpu_played(run):
-    assert not json.loads((run / "summary.json").read_text()).get("first_task_from")
-    assert first_task_rows(run) == first_task_rows(SAME_FIRST_TASK[run.name])
+def _cpu(run: Path) -> dict:
+    """The one kind of CPU a run played on: a grid run's from its summary.json, the study's runs'
+    (made before runs named their machine) the Intel VM's, as docs/results.md records."""
+    if run.parent != DATA / "baselines":
+        return INTEL
+    (cpu,) = {json.dumps(cpu, sort_keys=True) for cpu in _cpus(run)}
+    return json.loads(cpu)
+
+
+def _first_task_partners() -> list[tuple[Path, Path]]:
+    """Every pair of kept runs (and earlier study runs) that share their first task, settings and
+    kind of CPU alike: whether one took it over from the other or each played it itself."""
+    runs = sorted({*KEPT.values(), *EARLIER_ON_INTEL})
+    return [(a, b) for a, b in itertools.combinations(runs, 2) if _cpu(a) == _cpu(b)
+            and not RunDir(a).first_task_differences(RunDir(b).read_config().to_dict())]
+
+
+@pytest.mark.parametrize("a, b", _first_task_partners(), ids=lambda path: f"{path.parent.name}/{path.name}")
+def test_runs_that_share_a_first_task_on_one_kind_of_cpu_play_it_alike(a, b):
+    assert first_task_rows(a) == first_task_rows(b)
 
 
 def _kept(started_from: Path) -> Path | None:
