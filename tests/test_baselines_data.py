@@ -2,7 +2,8 @@
 in docs/data/baselines and the deciding study's runs it reuses (``REUSED``). Each is its trial of
 examples/sweep_baselines.toml (the settings `sweep` would resume it with), keeps what the held-out
 protocol needs, the runs of one family and seed were made on the one kind of CPU the plan gives
-that seed (``PLANNED_CPU``), a run that took over a first task repeats it byte for byte, runs that
+that seed (``PLANNED_CPU``; ``PLANNED_CPU_OF_TRIAL`` for a run that shares no generation with
+another), a run that took over a first task repeats it byte for byte, runs that
 share a first task on one kind of CPU play it alike, taken over or each by itself, and the
 baselines' status counts the runs kept."""
 from __future__ import annotations
@@ -16,6 +17,7 @@ import pytest
 
 from lifelong_evo.commands.cli import build_parser
 from lifelong_evo.commands.grid import build_grid
+from lifelong_evo.config import RunConfig
 from lifelong_evo.rundir import RunDir
 from tests.run_data import assert_keeps_what_held_out_scoring_needs, first_task_rows
 
@@ -24,15 +26,18 @@ DATA = ROOT / "docs/data"
 SEEDS = (42, 13, 17, 24, 31)
 REUSED = {**{f"sep-cmaes-reg0-seed{s}": DATA / f"study/families/reg0-seed{s}" for s in SEEDS},
           **{f"sep-cmaes-reg100-importancel2-seed{s}": DATA / f"study/families/reg100-seed{s}" for s in SEEDS},
-          **{f"neat-reg11-seed{s}": DATA / f"study/paper-claim/reg11-seed{s}" for s in (13, 24)}}
+          "neat-reg11-seed13": DATA / "study/paper-claim/reg11-seed13"}
 """The grid's trials whose runs are the deciding study's (docs/results.md, the baselines plan's
-additions of 2026-11-28 and 2026-11-29): trial -> the study run kept in docs/data/study."""
+additions of 2026-11-28, 2026-11-29 and 2026-12-01): trial -> the study run kept in docs/data/study."""
 INTEL = {"cpu": "Intel(R) Xeon(R) Processor (family 6, model 167)", "vector_isa": "AVX512"}
 AMD_ZEN4 = {"cpu": "AMD EPYC (family 25, model 17)", "vector_isa": "AVX512"}
-PLANNED_CPU = {("neat", 17): AMD_ZEN4, ("neat", 31): AMD_ZEN4}
+PLANNED_CPU = {("neat", 17): AMD_ZEN4, ("neat", 31): AMD_ZEN4, ("neat", 24): AMD_ZEN4}
 """The kind of CPU of each family and seed whose runs are not on the Intel VM (docs/results.md, the
-baselines plan's addition of 2026-12-01); every other family and seed, the reused study runs
+baselines plan's additions of 2026-12-01); every other family and seed, the reused study runs
 included, is the Intel VM's."""
+PLANNED_CPU_OF_TRIAL = {"neat-joint-seed13": AMD_ZEN4}
+"""Trials whose kind of CPU is not their family and seed's: allowed only for a run that shares no
+generation with any other (the second addition of 2026-12-01)."""
 EARLIER_ON_INTEL = [DATA / f"study/ms-lambda/seed{s}" for s in (42, 17, 31)]
 """Study runs that are no trial of the grid but share a first task with some: part 2's lambda = 5
 runs of those seeds, whole runs on the Intel VM at the study's commit (the regulariser acts only
@@ -50,7 +55,7 @@ TRIALS = _trials()
 
 
 def test_the_grid_and_the_reused_runs_are_the_plans():
-    assert len(TRIALS) == 50 and REUSED.keys() <= TRIALS.keys()
+    assert len(TRIALS) == 50 and len(REUSED) == 11 and REUSED.keys() <= TRIALS.keys()
     assert all((run / "metrics.csv").is_file() for run in REUSED.values())
     assert {run.name for run in OWN} <= TRIALS.keys() - REUSED.keys()
 
@@ -63,6 +68,8 @@ def test_a_kept_run_is_its_trial_and_keeps_its_controllers(name):
 
 
 def _planned_cpu(run: Path) -> dict:
+    if run.name in PLANNED_CPU_OF_TRIAL:
+        return PLANNED_CPU_OF_TRIAL[run.name]
     config = json.loads((run / "config.json").read_text())
     return PLANNED_CPU.get((config["algo"], config["seed"]), INTEL)
 
@@ -77,6 +84,16 @@ def _cpus(run: Path) -> list[dict]:
 def test_each_grid_run_ran_on_the_cpu_the_plan_gives_its_family_and_seed(run):
     cpus = _cpus(run)
     assert cpus and all(cpu == _planned_cpu(run) for cpu in cpus)
+
+
+@pytest.mark.parametrize("name", sorted(PLANNED_CPU_OF_TRIAL))
+def test_a_trial_on_a_kind_of_cpu_of_its_own_shares_its_first_task_with_no_other(name):
+    def first_task_settings(trial) -> dict:
+        settings = RunConfig.outcome_settings(trial.config.to_dict())
+        return {key: value for key, value in settings.items() if key not in RunConfig.AFTER_FIRST_TASK_SETTINGS}
+    sharing = [other.name for other in TRIALS.values()
+               if other.name != name and first_task_settings(other) == first_task_settings(TRIALS[name])]
+    assert sharing == []
 
 
 def test_the_reused_study_runs_are_of_seeds_the_plan_keeps_on_the_intel_vm():
@@ -125,5 +142,5 @@ def _kept(started_from: Path) -> Path | None:
 
 def test_the_status_counts_the_runs_kept():
     text = (ROOT / "docs/results.md").read_text()
-    (finished,) = re.findall(r"Baselines:\s+(\d+)\s+of\s+38\s+runs\s+of\s+the\s+grid's\s+own", text)
+    (finished,) = re.findall(r"Baselines:\s+(\d+)\s+of\s+39\s+runs\s+of\s+the\s+grid's\s+own", text)
     assert int(finished) == len(OWN)
