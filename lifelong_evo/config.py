@@ -108,6 +108,13 @@ class RunConfig:
         return {k: v for k, v in json.loads(json.dumps(filled)).items() if k not in cls.OUTPUT_SETTINGS}
 
     @classmethod
+    def first_task_settings(cls, values: dict[str, Any]) -> dict[str, Any]:
+        """``outcome_settings`` but those that act only after the first task's end
+        (``AFTER_FIRST_TASK_SETTINGS``): runs with equal ones play the same first task."""
+        settings = cls.outcome_settings(values)
+        return {k: v for k, v in settings.items() if k not in cls.AFTER_FIRST_TASK_SETTINGS}
+
+    @classmethod
     def configuration_settings(cls, values: dict[str, Any]) -> dict[str, Any]:
         """The settings among ``values`` that make runs different configurations, not repetitions
         of one: all but the seed, speed and output settings."""

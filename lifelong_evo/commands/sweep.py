@@ -162,9 +162,7 @@ def first_task_order(trials: list[Trial]) -> list[Trial]:
     run it starts from."""
     groups: dict[str, list[Trial]] = {}
     for trial in trials:
-        settings = RunConfig.outcome_settings(trial.config.to_dict())
-        for name in RunConfig.AFTER_FIRST_TASK_SETTINGS:
-            settings.pop(name)
+        settings = RunConfig.first_task_settings(trial.config.to_dict())
         groups.setdefault(json.dumps(settings, sort_keys=True), []).append(trial)
     return [trial for group in groups.values() for trial in sorted(
         group, key=lambda t: any(getattr(t.config, name) for name in RunConfig.AFTER_FIRST_TASK_SETTINGS))]
