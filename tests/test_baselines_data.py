@@ -4,8 +4,9 @@ examples/sweep_baselines.toml (the settings `sweep` would resume it with), keeps
 protocol needs, the runs of one family and seed were made on the one kind of CPU the plan gives
 that seed (``PLANNED_CPU``; ``PLANNED_CPU_OF_TRIAL`` for a run that shares no generation with
 another), a run that took over a first task repeats it byte for byte, runs that
-share a first task on one kind of CPU play it alike, taken over or each by itself, and the
-baselines' status counts the runs kept."""
+share a first task on one kind of CPU play it alike, taken over or each by itself, the
+baselines' status counts the runs kept, and each family's verdict is its data's (and is drawn only
+once the family's runs are complete)."""
 from __future__ import annotations
 
 import itertools
@@ -17,6 +18,7 @@ import pytest
 
 from lifelong_evo.commands.cli import build_parser
 from lifelong_evo.commands.grid import build_grid
+from lifelong_evo.commands.statistics import paired_difference
 from lifelong_evo.config import RunConfig
 from lifelong_evo.rundir import RunDir
 from tests.run_data import assert_keeps_what_held_out_scoring_needs, first_task_rows
@@ -143,3 +145,45 @@ def test_the_status_counts_the_runs_kept():
     text = (ROOT / "docs/results.md").read_text()
     ((finished, planned),) = re.findall(r"Baselines:\s+(\d+)\s+of\s+(\d+)\s+runs\s+of\s+the\s+grid's\s+own", text)
     assert (int(finished), int(planned)) == (len(OWN), len(TRIALS) - len(REUSED))
+
+
+VERDICTS = {"NEAT (0.92)": ("neat", "reg11"), "sep-CMA-ES": ("sep-cmaes", "reg100-importancel2")}
+"""Per family, as its verdict paragraph names it (``**Verdict, <family>:**``): its trials' name
+prefix and its regulariser's row (docs/results.md, the verdict rule)."""
+
+
+def _held_out_red_retention(row: str) -> dict[int, float]:
+    """Seed -> held-out red ``R_top`` at the end of green, for the kept runs of one row of the
+    grid (a trial's name without its seed)."""
+    values = {}
+    for name, run in KEPT.items():
+        if name.rsplit("-seed", 1)[0] == row:
+            (red_at_green,) = [cell for cell in json.loads((run / "summary.json").read_text())["held_out"]["forgetting"]
+                               if cell["at_end_of"] == 1 and cell["task"] == "red"]
+            values[int(name.rsplit("-seed", 1)[1])] = red_at_green["R_top"]
+    return values
+
+
+@pytest.mark.parametrize("family", sorted(VERDICTS))
+def test_a_family_verdict_is_drawn_from_its_complete_data_by_the_rule(family):
+    """The verdict rule (with its amendment of 2026-11-29): the position (regulariser - fine-tune) /
+    (rehearsal - fine-tune) of the seed means of held-out red R_top, given only where rehearsal's
+    paired 95% t-interval excludes zero, beside the exact sign-flip p; no verdict before every run
+    of the family is kept."""
+    prefix, regulariser_row = VERDICTS[family]
+    text = (ROOT / "docs/results.md").read_text()
+    paragraphs = re.findall(rf"\*\*Verdict, {re.escape(family)}:\*\*(.*?)(?:\n\n|$)", text, re.S)
+    if not {name for name in TRIALS if name.startswith(prefix + "-")} <= KEPT.keys():
+        assert paragraphs == []
+        return
+    (paragraph,) = [" ".join(paragraph.split()) for paragraph in paragraphs]
+    fine_tune, regulariser, rehearsal = (_held_out_red_retention(f"{prefix}-{row}")
+                                         for row in ("reg0", regulariser_row, "rehearsal0.3"))
+    assert len(fine_tune) == len(regulariser) == len(rehearsal) == len(SEEDS)
+    by_rehearsal = paired_difference(rehearsal, fine_tune)
+    assert f"sign-flip p = {by_rehearsal.p:.3f}" in paragraph
+    if by_rehearsal.low > 0 or by_rehearsal.high < 0:
+        position = paired_difference(regulariser, fine_tune).mean / by_rehearsal.mean
+        assert f"position {position:.2f}" in paragraph and "not established" not in paragraph
+    else:
+        assert "the scale is not established" in paragraph and "position " not in paragraph
