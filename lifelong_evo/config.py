@@ -91,12 +91,16 @@ class RunConfig:
     """How a run is computed: they change at most the rounding of its numbers, so runs that differ
     only in them (and in the seed) are one configuration; a resumed run keeps them."""
     OUTPUT_SETTINGS: ClassVar[tuple[str, ...]] = ("record", "episodes_every", "gap_window")
+    """What a run records besides its numbers, which they never change: a resumed run may change them."""
+    BASELINE_SETTINGS: ClassVar[tuple[str, ...]] = ("rehearsal", "joint", "from_scratch", "reference_every")
+    """The continual-learning baselines and the boundary-free reference (docs/metrics.md,
+    Baselines): each is off at its default, and a run with all of them off (and lambda 0) is
+    fine-tuning."""
     AFTER_FIRST_TASK_SETTINGS: ClassVar[tuple[str, ...]] = ("reg", "rehearsal", "from_scratch")
     """Settings that act only at or after the first task's end (the regulariser takes its first
     reference there; rehearsal has no earlier task before it; from scratch starts afresh there):
     runs that differ only in them share their first task, number for number (``--start-from``,
     ``sweep --share-first-task``; the run that takes it over does at its end what it does)."""
-    """What a run records besides its numbers, which they never change: a resumed run may change them."""
 
     @classmethod
     def outcome_settings(cls, values: dict[str, Any]) -> dict[str, Any]:

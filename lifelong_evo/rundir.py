@@ -781,11 +781,17 @@ def config_key(config: dict[str, Any]) -> str:
     return json.dumps(configuration_of(config), sort_keys=True)
 
 
+BASELINES_OFF = {key: getattr(RunConfig(), key) for key in RunConfig.BASELINE_SETTINGS}
+"""Each baseline setting's value when it is off (its default), as config.json writes it."""
+
+
 def config_differences(config: dict[str, Any], others: list[dict[str, Any]]) -> list[str]:
     """What sets ``config`` apart from ``others`` beyond algorithm, lambda and schedule, as
     ``KEY=VALUE`` items: an algorithm option only among runs of the same algorithm, each option
     and environment setting by itself (``genetics=2.0``, ``env.see_other_agents=True``). A
-    regulariser's option only against runs that have one (not those at ``reg == 0``)."""
+    regulariser's option only against runs that have one (not those at ``reg == 0``), a baseline
+    setting (``RunConfig.BASELINE_SETTINGS``) only where it is on: fine-tuning is the plain label,
+    a baseline ``rehearsal=0.3`` or ``joint=True``."""
     mine = configuration_of(config)
     theirs = [configuration_of(o) for o in others]
     same_algo = [t for t, o in zip(theirs, others) if o.get("algo") == config.get("algo")]
@@ -806,6 +812,8 @@ def config_differences(config: dict[str, Any], others: list[dict[str, Any]]) -> 
             prefix = "env." if key in ("env", "env_resolved") else ""
             differences += [f"{prefix}{name}={value[name]}" for name in sorted(value)
                             if any(differs(t.get(key, {}), name, value[name], is_option) for t in compared)]
+        elif key in RunConfig.BASELINE_SETTINGS and value == BASELINES_OFF[key]:
+            continue
         elif any(t.get(key) != value for t in compared):
             differences.append(f"{key}={value}")
     return differences

@@ -90,8 +90,8 @@ def test_runs_are_paired_with_the_from_scratch_run_of_their_seed(runs):
 def test_compare_reports_the_areas_over_seeds_and_against_the_baseline(runs):
     rows, markdown = compare_table([runs])
     means = {(r["configuration"], r["metric"]): r for r in rows if r["statistic"] == "mean"}
-    # labels name what sets the configurations apart: from_scratch, and the population of pop50-s1
-    label, plain = (f"neat reg={reg} red-green-red from_scratch=False population=300" for reg in (1, 0))
+    # labels name what sets the configurations apart: the population of pop50-s1, from_scratch where it is on
+    label, plain = (f"neat reg={reg} red-green-red population=300" for reg in (1, 0))
     green, red, area = (means[(label, m)] for m in ("FT_area phase 1 (green)", "FT_area phase 2 (red)", "FT_area"))
     assert all(m["episodes"] == "training" and m["seeds"] == [1, 2] for m in (green, red, area))  # not seed 3
     assert green["values"] == [4.0, 1.0] and green["mean"] == 2.5

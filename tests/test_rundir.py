@@ -165,6 +165,19 @@ def test_labels_name_what_sets_a_configuration_apart():
     assert describe_config(neat_092, [neat_092, _config(seed=9)]) == "neat reg=0 red-green-red"
 
 
+def test_labels_name_a_baseline_only_where_it_is_on():
+    """Fine-tuning keeps the plain label beside its baselines, and each baseline names only its
+    own setting (not every other one off), so the labels stay apart and short."""
+    fine_tune, regulariser = _config(), _config(reg=11.0)
+    baselines = [_config(rehearsal=0.3), _config(joint=True), _config(from_scratch=True),
+                 _config(reg=11.0, reference_every=50)]
+    configs = [fine_tune, regulariser, *baselines]
+    assert [describe_config(c, configs) for c in configs] == [
+        "neat reg=0 red-green-red", "neat reg=11 red-green-red", "neat reg=0 red-green-red rehearsal=0.3",
+        "neat reg=0 red-green-red joint=True", "neat reg=0 red-green-red from_scratch=True",
+        "neat reg=11 red-green-red reference_every=50"]
+
+
 # ------------------------------------------------------------------------ names, marker and lock
 
 @pytest.mark.parametrize("name", ["neat-red-green-red-reg11-seed42", "my run", "a.b", "...", ".hidden", "-x"])

@@ -88,6 +88,7 @@ from algorithms import controller_size
 
 from ..metrics import controller_key, forward_transfer_area
 from ..rundir import (
+    BASELINES_OFF,
     Run,
     RunDir,
     config_key,
@@ -195,7 +196,7 @@ def _equal(value: Any, wanted: Any) -> bool:
     return json.dumps(value) == json.dumps(wanted)
 
 
-FINE_TUNING = {"reg": 0.0, "rehearsal": 0.0, "joint": False, "from_scratch": False, "reference_every": 0}
+FINE_TUNING = {"reg": 0.0, **BASELINES_OFF}
 """The settings of fine-tuning, every configuration's default baseline: no regulariser and none of
 the baselines of docs/metrics.md (the values as config.json writes them)."""
 
