@@ -26,17 +26,22 @@ from tests.run_data import assert_keeps_what_held_out_scoring_needs, first_task_
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "docs/data"
 SEEDS = (42, 13, 17, 24, 31)
-REUSED = {**{f"sep-cmaes-reg0-seed{s}": DATA / f"study/families/reg0-seed{s}" for s in SEEDS},
-          **{f"sep-cmaes-reg100-importancel2-seed{s}": DATA / f"study/families/reg100-seed{s}" for s in SEEDS},
-          "neat-reg11-seed13": DATA / "study/paper-claim/reg11-seed13"}
-"""The grid's trials whose runs are the deciding study's (docs/results.md, the baselines plan's
-additions of 2026-11-28, 2026-11-29 and 2026-12-01): trial -> the study run kept in docs/data/study."""
 INTEL = {"cpu": "Intel(R) Xeon(R) Processor (family 6, model 167)", "vector_isa": "AVX512"}
 AMD_ZEN4 = {"cpu": "AMD EPYC (family 25, model 17)", "vector_isa": "AVX512"}
-PLANNED_CPU = {("neat", 17): AMD_ZEN4, ("neat", 31): AMD_ZEN4, ("neat", 24): AMD_ZEN4}
+SEP_CMAES_ON_AMD_ZEN4 = (42,)
+"""sep-CMA-ES seeds whose first run of the grid started on the AMD Zen 4 kind: all five of their
+runs are the grid's, and part 4's two stay the study's (the second addition of 2026-12-01)."""
+PLANNED_CPU = {("neat", 17): AMD_ZEN4, ("neat", 31): AMD_ZEN4, ("neat", 24): AMD_ZEN4,
+               **{("sep-cmaes", seed): AMD_ZEN4 for seed in SEP_CMAES_ON_AMD_ZEN4}}
 """The kind of CPU of each family and seed whose runs are not on the Intel VM (docs/results.md, the
 baselines plan's additions of 2026-12-01); every other family and seed, the reused study runs
 included, is the Intel VM's."""
+REUSED = {**{f"sep-cmaes-{row}-seed{s}": DATA / f"study/families/{study_row}-seed{s}"
+             for row, study_row in (("reg0", "reg0"), ("reg100-importancel2", "reg100"))
+             for s in SEEDS if s not in SEP_CMAES_ON_AMD_ZEN4},
+          "neat-reg11-seed13": DATA / "study/paper-claim/reg11-seed13"}
+"""The grid's trials whose runs are the deciding study's (docs/results.md, the baselines plan's
+additions of 2026-11-28, 2026-11-29 and 2026-12-01): trial -> the study run kept in docs/data/study."""
 PLANNED_CPU_OF_TRIAL = {"neat-joint-seed13": AMD_ZEN4}
 """Trials whose kind of CPU is not their family and seed's: allowed only for a run that shares no
 generation with any other (the second addition of 2026-12-01)."""
