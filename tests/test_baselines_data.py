@@ -95,10 +95,9 @@ def test_each_grid_run_ran_on_the_cpu_the_plan_gives_its_family_and_seed(run):
 
 @pytest.mark.parametrize("name", sorted(PLANNED_CPU_OF_TRIAL))
 def test_a_trial_on_a_kind_of_cpu_of_its_own_shares_its_first_task_with_no_other(name):
-    def first_task_settings(trial) -> dict:
-        return RunConfig.first_task_settings(trial.config.to_dict())
+    mine = RunConfig.first_task_settings(TRIALS[name].config.to_dict())
     sharing = [other.name for other in TRIALS.values()
-               if other.name != name and first_task_settings(other) == first_task_settings(TRIALS[name])]
+               if other.name != name and RunConfig.first_task_settings(other.config.to_dict()) == mine]
     assert sharing == []
 
 
