@@ -42,9 +42,9 @@ REUSED = {**{f"sep-cmaes-{row}-seed{s}": DATA / f"study/families/{study_row}-see
           "neat-reg11-seed13": DATA / "study/paper-claim/reg11-seed13"}
 """The grid's trials whose runs are the deciding study's (docs/results.md, the baselines plan's
 additions of 2026-11-28, 2026-11-29 and 2026-12-01): trial -> the study run kept in docs/data/study."""
-PLANNED_CPU_OF_TRIAL = {"neat-joint-seed13": AMD_ZEN4}
+PLANNED_CPU_OF_TRIAL = {"neat-joint-seed13": AMD_ZEN4, "sep-cmaes-joint-seed42": INTEL}
 """Trials whose kind of CPU is not their family and seed's: allowed only for a run that shares no
-generation with any other (the second addition of 2026-12-01)."""
+generation with any other (the second addition of 2026-12-01, the addition of 2026-12-02)."""
 EARLIER_ON_INTEL = [DATA / f"study/ms-lambda/seed{s}" for s in (42, 17, 31)]
 """Study runs that are no trial of the grid but share a first task with some: part 2's lambda = 5
 runs of those seeds, whole runs on the Intel VM at the study's commit (the regulariser acts only
