@@ -5,7 +5,9 @@ module never imports the registry and no module imports the package that imports
 """
 from __future__ import annotations
 
-from .base import BatchedPolicy, GenerationReport, Optimizer, OptimizerOptions
+from typing import Any
+
+from .base import BatchedPolicy, ExportError, GenerationReport, Optimizer, OptimizerOptions
 from .cmaes import CMAES, SepCMAES
 from .es import ESOptimizer
 from .neat import NeatOptimizer
@@ -51,19 +53,38 @@ def controller_size(exported: dict) -> dict[str, int]:
     raise ValueError("not an exported controller: expected a NEAT genome or an MLP (layer_sizes, parameters)")
 
 
+def check_export(exported: Any, obs_dim: int | None = None) -> None:
+    """ExportError unless ``exported`` is what ``Optimizer.export`` writes, a NEAT genome or an MLP,
+    whole and of consistent sizes, taking ``obs_dim`` inputs where given: the check
+    ``policy_from_export`` makes first, so that a damaged controller is refused by its field."""
+    if not isinstance(exported, dict):
+        raise ExportError(f"a controller is a JSON object, not {type(exported).__name__}")
+    if exported.get("format") == "neat-python-genome":
+        from .neat.export import check_export as check_neat
+
+        check_neat(exported, obs_dim)
+    elif "layer_sizes" in exported:
+        from .mlp import check_export as check_mlp
+
+        check_mlp(exported, obs_dim)
+    else:
+        raise ExportError("not an exported controller: expected a NEAT genome (format neat-python-genome) or an MLP "
+                          "(layer_sizes, parameters)")
+
+
 def policy_from_export(exported: dict, device: str = "cpu") -> BatchedPolicy:
-    """A one-controller policy from what ``Optimizer.export`` wrote (NEAT genome or MLP)."""
+    """A one-controller policy from what ``Optimizer.export`` wrote (NEAT genome or MLP);
+    ExportError where it is neither (``check_export``)."""
+    check_export(exported)
     if exported.get("format") == "neat-python-genome":
         from .neat.export import policy_from_export as neat_policy
 
         return neat_policy(exported, device)
-    if "layer_sizes" in exported:
-        from .mlp import MLPPolicy
+    from .mlp import MLPPolicy
 
-        return MLPPolicy.from_export(exported, device)
-    raise ValueError("not an exported controller: expected a NEAT genome or an MLP (layer_sizes, parameters)")
+    return MLPPolicy.from_export(exported, device)
 
 
-__all__ = ["CMAES", "PGPE", "REGISTRY", "SNES", "BatchedPolicy", "ESOptimizer", "GenerationReport", "NeatOptimizer",
-           "OpenAIES", "Optimizer", "OptimizerOptions", "SepCMAES", "UnknownAlgorithmError", "controller_size",
-           "make_optimizer", "policy_from_export"]
+__all__ = ["CMAES", "PGPE", "REGISTRY", "SNES", "BatchedPolicy", "ESOptimizer", "ExportError", "GenerationReport",
+           "NeatOptimizer", "OpenAIES", "Optimizer", "OptimizerOptions", "SepCMAES", "UnknownAlgorithmError",
+           "check_export", "controller_size", "make_optimizer", "policy_from_export"]

@@ -22,6 +22,28 @@ from typing import Any, ClassVar, Literal, Protocol, get_args, get_origin, get_t
 import torch
 
 
+class ExportError(ValueError):
+    """An exported controller (``Optimizer.export``) that is not what its format says: a missing
+    or mistyped field, sizes that disagree, or inputs other than the ones asked for. The message
+    names the field and what it must be."""
+
+
+def is_number(value: Any) -> bool:
+    """Whether a JSON value is a number (an int or a float, not a boolean)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def is_integer(value: Any) -> bool:
+    """Whether a JSON value is an integer (not a boolean)."""
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def shown_value(value: Any) -> str:
+    """``value`` for a message, cut to one short line (a list of thousands of parameters is not shown whole)."""
+    shown = repr(value)
+    return shown if len(shown) <= 60 else shown[:40] + "..." + shown[-10:]
+
+
 class BatchedPolicy(Protocol):
     """Maps observations of a whole population to controller outputs in one call.
 

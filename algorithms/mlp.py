@@ -15,6 +15,8 @@ from collections.abc import Sequence
 
 import torch
 
+from .base import ExportError, is_integer, is_number, shown_value
+
 N_OUTPUTS = 3
 """Controller outputs (one per wheel)."""
 
@@ -91,6 +93,27 @@ class MLPPolicy:
 
     @classmethod
     def from_export(cls, exported: dict, device: str | torch.device = "cpu") -> "MLPPolicy":
-        """A one-controller policy from an ``export()`` dict (``layer_sizes``, ``parameters``)."""
+        """A one-controller policy from an ``export()`` dict (``layer_sizes``, ``parameters``);
+        ExportError where it is not one (``check_export``)."""
+        check_export(exported)
         params = torch.as_tensor(exported["parameters"], dtype=torch.float32, device=device).reshape(1, -1)
         return cls(params, exported["layer_sizes"])
+
+
+def check_export(exported: dict, obs_dim: int | None = None) -> None:
+    """ExportError unless ``exported`` is an MLP export: ``layer_sizes`` a list of at least two
+    positive integers ending in ``N_OUTPUTS`` (and starting with ``obs_dim``, where given), and
+    ``parameters`` a list of exactly ``n_parameters(layer_sizes)`` numbers."""
+    sizes = exported.get("layer_sizes")
+    if not isinstance(sizes, list) or len(sizes) < 2 or not all(is_integer(s) and s >= 1 for s in sizes):
+        raise ExportError(f"layer_sizes is {shown_value(sizes)}, not a list of at least two positive integers")
+    if sizes[-1] != N_OUTPUTS:
+        raise ExportError(f"layer_sizes {sizes} ends in {sizes[-1]}, not in the {N_OUTPUTS} outputs of a controller")
+    if obs_dim is not None and sizes[0] != obs_dim:
+        raise ExportError(f"layer_sizes {sizes} takes {sizes[0]} inputs, not the arena's {obs_dim} observations")
+    params = exported.get("parameters")
+    if not isinstance(params, list) or not all(is_number(p) for p in params):
+        raise ExportError(f"parameters is {shown_value(params)}, not a list of numbers")
+    if len(params) != n_parameters(sizes):
+        raise ExportError(f"parameters has {len(params)} numbers, and layer_sizes {sizes} need {n_parameters(sizes)}")
+

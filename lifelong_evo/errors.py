@@ -25,6 +25,11 @@ class UserError(Exception):
     """A mistake in what the user gave (a path, a flag, a run directory): one line that says what to do."""
 
 
+class RunDirError(UserError):
+    """A run directory, or one of its files, that is missing or not what the contract says
+    (``lifelong_evo.rundir``, whose readers raise it; ``lifelong_evo.run_files`` checks the files)."""
+
+
 class Parser(argparse.ArgumentParser):
     """argparse with the command line's error contract: one line, ``error: ...``, and exit status 2."""
 

@@ -43,9 +43,10 @@ from algorithms import REGISTRY
 from . import checkpoint
 from .checkpoint import atomic_write_bytes
 from .config import RunConfig
-from .errors import UserError
+from .errors import RunDirError
 from .metrics import GenerationRecord, retention_column
 from .options import flag
+from .run_files import check_config, check_controller, check_metrics, check_summary
 from .schedule import parse_schedule
 
 RESOLVED = (("env", "env_resolved"), ("algo_options", "algo_options_resolved"))
@@ -59,10 +60,6 @@ MARKER = ".lifelong-evo-run"
 a directory that holds it."""
 LOCK = ".lock"
 """The file in every run directory that the process writing the run holds locked (``RunLock``)."""
-
-
-class RunDirError(UserError):
-    """A run directory, or one of its files, that is missing or not what the contract says."""
 
 
 class ResumeError(RunDirError):
@@ -382,10 +379,8 @@ class RunDir:
                                  "training_episodes": config.training_plan(), "versions": library_versions()})
 
     def read_config(self) -> RunConfig:
-        """The configuration the run was created with."""
-        values = read_json(self.config)
-        return RunConfig.from_dict({k: v for k, v in values.items() if k not in RESOLVED_KEYS},
-                                   str(self.config))
+        """The configuration the run was created with, checked (``run_files.check_config``)."""
+        return check_config(read_json(self.config), self.config, RESOLVED_KEYS)
 
     def setting_differences(self, stated: dict[str, Any]) -> list[str]:
         """Each setting that would change this run's numbers in which ``stated`` differs from the
@@ -451,13 +446,27 @@ class RunDir:
         except RunDirError:
             return None
 
+    def checked_summary(self) -> dict[str, Any] | None:
+        """summary.json checked against config.json (``run_files.check_summary``), or None where
+        there is none yet; RunDirError where it cannot be read or breaks the contract."""
+        if not self.summary.exists():
+            return None
+        return check_summary(read_json(self.summary), self.summary, self.read_config())
+
     def write_controller(self, name: str, exported: dict[str, Any]) -> None:
         """controllers/<name>.json (names: ``metrics.controller_key``, and ``final-top``)."""
         write_json(self.controllers / f"{name}.json", exported)
 
     def read_controllers(self) -> dict[str, dict[str, Any]]:
-        """Every controller in controllers/ by name (file stem), sorted by name."""
-        return {path.stem: read_json(path) for path in sorted(self.controllers.glob("*.json"))}
+        """Every controller in controllers/ by name (file stem), sorted by name, each checked to
+        play in the run's arena (``run_files.check_controller``)."""
+        files = sorted(self.controllers.glob("*.json"))
+        config = self.read_config() if files else None
+        return {path.stem: check_controller(read_json(path), path, config) for path in files}
+
+    def read_controller(self, path: Path) -> dict[str, Any]:
+        """The controller in ``path`` (``find_controller``'s), checked to play in the run's arena."""
+        return check_controller(read_json(path), path, self.read_config())
 
     def find_controller(self, which: str) -> tuple[Path, str]:
         """(controller file, label) for ``which``: ``final``, ``task<N>`` (the top individual at
@@ -710,7 +719,7 @@ class Run:
     ``versions``)."""
     summary: dict[str, Any]
     metrics: list[dict[str, str]] = field(default_factory=list)
-    """metrics.csv's rows, checked by ``read_metrics``."""
+    """metrics.csv's rows, checked by ``read_metrics`` and against the schedule (``metrics_rows``)."""
 
     @property
     def seed(self):
@@ -725,6 +734,15 @@ class Run:
         """Every task of the schedule has ended (summary.json names them all)."""
         schedule = parse_schedule(str(self.config.get("schedule")), int(self.config.get("generations", 0)))
         return len(self.summary.get("phases", [])) == len(schedule)
+
+    def metrics_rows(self) -> list[dict[str, str]]:
+        """metrics.csv's rows (none where the run has no metrics.csv), checked by ``read_metrics``
+        and against config.json's schedule (``run_files.check_metrics``)."""
+        path = self.path / "metrics.csv"
+        if not path.exists():
+            return []
+        settings = check_config(self.config, self.path / "config.json", RESOLVED_KEYS)
+        return check_metrics(read_metrics(path), path, settings)
 
     def column(self, name: str) -> np.ndarray:
         """A metrics.csv column as floats over generations (NaN where empty or absent)."""
@@ -850,10 +868,17 @@ def find_run_dirs(paths) -> list[Path]:
 
 
 def load_run(path: Path, with_metrics: bool = True) -> Run:
-    config = read_json(path / "config.json")
-    summary = read_json(path / "summary.json")
-    metrics = read_metrics(path / "metrics.csv") if with_metrics and (path / "metrics.csv").exists() else []
-    return Run(path=path, config=config, summary=summary, metrics=metrics)
+    """The run in ``path``, its files checked (``run_files``): config.json, summary.json against it
+    and, ``with_metrics``, metrics.csv against it. ``Run.config`` is config.json as written, its
+    settings as their fields type them."""
+    written = read_json(path / "config.json")
+    settings = check_config(written, path / "config.json", RESOLVED_KEYS)
+    config = {**written, **{key: getattr(settings, key) for key in written if key not in RESOLVED_KEYS}}
+    summary = check_summary(read_json(path / "summary.json"), path / "summary.json", settings)
+    run = Run(path=path, config=config, summary=summary)
+    if with_metrics:
+        run.metrics = run.metrics_rows()
+    return run
 
 
 def load_runs(paths, with_metrics: bool = True) -> list[Run]:

@@ -97,7 +97,6 @@ from ..rundir import (
     group_runs,
     is_run_dir,
     load_runs,
-    read_metrics,
     write_json,
 )
 from ..schedule import parse_schedule
@@ -428,8 +427,7 @@ def forward_transfer_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
 
     def metrics(run: Run) -> list[dict[str, str]]:
         if run.path not in rows:
-            path = run.path / "metrics.csv"
-            rows[run.path] = read_metrics(path) if path.exists() else []
+            rows[run.path] = run.metrics_rows()
         return rows[run.path]
 
     figures: dict[Path, list[Figure]] = {}
@@ -463,7 +461,7 @@ def size_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
         found: list[Figure] = []
         controllers = RunDir(run.path).read_controllers()
         has_centre = "centre_current" in run.summary and (run.path / "metrics.csv").exists()
-        rows = read_metrics(run.path / "metrics.csv") if has_centre else []
+        rows = run.metrics_rows() if has_centre else []
         for i, task in enumerate(run.summary.get("phases", [])):
             exported = controllers.get(controller_key(i, task, "top"))
             if exported is not None:

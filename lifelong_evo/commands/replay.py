@@ -19,7 +19,7 @@ from ..config import check_device
 from ..episodes import play_episodes
 from ..errors import UserError
 from ..options import bounded
-from ..rundir import RunDir, read_json
+from ..rundir import RunDir
 from .flags import typed
 from .rerun_recorder import APPLICATION_ID, RerunRecorder, make_blueprint
 
@@ -44,7 +44,7 @@ def replay(run: str | Path, task_name: str | None = None, episodes: int = 5, con
     env_config = config.env_config()
     env_config.check_task(task)  # ConfigError (one line) if the run's arena lacks its colours
     path, label = run_dir.find_controller(controller)
-    exported = read_json(path)
+    exported = run_dir.read_controller(path)  # one that plays in this arena, or a line naming what is wrong
     try:
         policy = policy_from_export(exported, device)
     except (ValueError, KeyError) as error:

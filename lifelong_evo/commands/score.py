@@ -82,7 +82,7 @@ def score_run(run_dir: RunDir, episodes: int | None = None) -> dict[str, Any]:
     phases = config.phases()
     scores = score_controllers(controllers, config.env_config(), distinct_tasks(phases), episodes)
     block = held_out_summary([phase.name for phase in phases], scores, episodes)
-    summary = {key: value for key, value in (run_dir.read_summary() or {}).items() if key != "held_out"}
+    summary = {key: value for key, value in (run_dir.checked_summary() or {}).items() if key != "held_out"}
     run_dir.write_summary({**summary, "held_out": block})
     return block
 
@@ -105,8 +105,8 @@ def main(args: argparse.Namespace) -> int:
             files.append((given, read_json(given), _file_config(given, args)))
         else:
             runs += [RunDir(path) for path in find_run_dirs([given])]
-    for run_dir in runs:  # every run readable before any is rewritten
-        run_dir.read_config()
+    for run_dir in runs:  # every run readable before any is scored or rewritten
+        run_dir.checked_summary()  # its figures are kept beside the new block: one that cannot be read is refused
         _check_controllers(str(run_dir.path), run_dir.read_controllers())
     for path, exported, config in files:
         _check_controllers(str(path.parent), {path.name: exported})

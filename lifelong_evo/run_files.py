@@ -1,0 +1,243 @@
+"""The validating readers of a run directory's files: what ``rundir`` read from config.json,
+summary.json, metrics.csv and controllers/ is checked here against the contract (README.md, The
+run directory) and against the run's own config.json, before any verb uses it.
+
+Contract: every reading verb (``plot``, ``compare``, ``replay``, ``score``, and ``--resume`` and
+``--start-from`` where they read a run) meets a damaged or mismatched file as one ``RunDirError``
+naming the file, the key or line, the value and what was expected, with the fix (exit status 2,
+one ``error:`` line), never as an exception halfway through its work. Nothing here writes.
+
+- ``check_config``: config.json is a JSON object of ``RunConfig`` fields (and the keys written
+  beside them), each of its field's type and within its bounds, ``env`` and ``algo_options``
+  objects, a schedule that parses and an arena the environment accepts.
+- ``check_summary``: summary.json is an object whose ``phases`` are the first tasks of
+  config.json's schedule, in order (``metrics.summarise`` writes one per ended phase), and whose
+  figures, where present, are numbers (or null) where the readers expect them: the per-phase
+  lists, forgetting rows, R matrices, transfer metrics, stability gaps and the held-out block.
+- ``check_metrics``: each metrics.csv row's ``task_index`` lies within the schedule, its ``task``
+  is the schedule's task at that index, and generations strictly increase (each written once).
+- ``check_controller``: an exported controller as ``algorithms.check_export`` sees it, taking the
+  run's arena's observations as inputs.
+
+An algorithm this process does not know (a custom optimiser registered by a script) is no error
+here: reading a run needs only its files.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from algorithms import ExportError, check_export
+from envs import ConfigError
+
+from .config import RunConfig
+from .errors import RunDirError
+from .options import parse_value, schema
+from .schedule import ScheduleError
+
+FIX = "restore it from a copy of the run, or run the run again"
+"""The way out for a damaged file: the toolkit wrote it, so only another copy can mend it."""
+TABLES = ("env", "algo_options")
+"""config.json's settings that are objects of options (every other one is a single value)."""
+LEVELS = ("pop", "top", "centre", "best_sample")
+"""The controllers whose figures summary.json and its held-out block hold (each has some of them)."""
+PHASE_FIGURES = ("current", "centre_current", *(f"current_{level}" for level in LEVELS))
+"""summary.json's (and its held-out block's) lists with a figure per ended phase."""
+
+
+def _shown(value: Any) -> str:
+    """``value`` for a message, cut to one short line."""
+    shown = repr(value)
+    return shown if len(shown) <= 60 else shown[:40] + "..." + shown[-10:]
+
+
+def _kind(value: Any) -> str:
+    """What a JSON value is, in words: ``a list``, ``a string``, ..."""
+    return {dict: "an object", list: "a list", str: "a string", bool: "a boolean", int: "an integer",
+            float: "a number", type(None): "null"}.get(type(value), type(value).__name__)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _is_integer(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def check_config(values: Any, path: Path, written_beside: Iterable[str] = ()) -> RunConfig:
+    """The ``RunConfig`` that config.json ``values`` (read from ``path``) holds, each setting parsed
+    to its field's type within its bounds; RunDirError naming the key otherwise. ``written_beside``:
+    config.json's keys that are no setting (the resolved options, versions), left unchecked."""
+    if not isinstance(values, dict):
+        raise RunDirError(f"{path} holds {_kind(values)}, not a JSON object of run settings: {FIX}")
+    declared = schema(RunConfig)
+    settings = {key: value for key, value in values.items() if key not in set(written_beside)}
+    unknown = sorted(set(settings) - set(declared))
+    if unknown:
+        raise RunDirError(f"{path} has the key(s) {', '.join(map(repr, unknown))}, which are no run setting (the "
+                          f"settings are RunConfig's fields): {FIX}")
+    typed: dict[str, Any] = {}
+    for name, value in settings.items():
+        if name in TABLES:
+            if not isinstance(value, dict):
+                raise RunDirError(f"{path}, key {name!r}: {_shown(value)} is {_kind(value)}, not an object of "
+                                  f"options: {FIX}")
+            typed[name] = value
+            continue
+        try:
+            typed[name] = parse_value(declared[name], value)
+        except ConfigError as error:
+            raise RunDirError(f"{path}, key {name!r}: {error}: {FIX}") from None
+    config = RunConfig(**typed)
+    try:
+        config.phases()
+    except ScheduleError as error:
+        raise RunDirError(f"{path}, key 'schedule': {error}: {FIX}") from None
+    try:
+        config.env_config()
+    except (ConfigError, TypeError, ValueError) as error:  # an option ForagingConfig does not have or take
+        raise RunDirError(f"{path}, key 'env': {error}: {FIX}") from None
+    return config
+
+
+def check_summary(values: Any, path: Path, config: RunConfig) -> dict[str, Any]:
+    """summary.json ``values`` (read from ``path``), checked against its run's ``config`` (see the
+    module docstring); RunDirError naming the key otherwise."""
+    if not isinstance(values, dict):
+        raise RunDirError(f"{path} holds {_kind(values)}, not a JSON object of a run's figures: {FIX}")
+    schedule = [phase.name for phase in config.phases()]
+    phases = values.get("phases")
+    where = f"{path}, key 'phases'"
+    if not isinstance(phases, list) or not all(isinstance(task, str) for task in phases):
+        raise RunDirError(f"{where}: {_shown(phases)} is not a list of task names: {FIX}")
+    if len(phases) > len(schedule):
+        raise RunDirError(f"{where}: {len(phases)} phases, more than the {len(schedule)} of config.json's schedule "
+                          f"{config.schedule!r}: the summary is another run's or damaged: {FIX}")
+    for index, (task, planned) in enumerate(zip(phases, schedule)):
+        if task != planned:
+            raise RunDirError(f"{where}, item {index}: {task!r}, where config.json's schedule {config.schedule!r} "
+                              f"has {planned!r}: the summary is another run's or damaged: {FIX}")
+    _check_figures(values, f"{path}", len(phases), schedule)
+    held = values.get("held_out")
+    if held is not None:
+        _check_held_out(held, f"{path}, key 'held_out'", schedule)
+    gaps = values.get("stability_gap")
+    if gaps is not None:
+        for index, entry in enumerate(_list(gaps, f"{path}, key 'stability_gap'")):
+            at = f"{path}, key 'stability_gap', item {index}"
+            _row(entry, at, ("after_switch_to", range(1, len(schedule))), schedule)
+    return values
+
+
+def _check_figures(part: dict[str, Any], where: str, phases: int, schedule: list[str]) -> None:
+    """The training figures of summary.json, or of its held-out block (``where`` names which):
+    a number per ended phase in each ``PHASE_FIGURES`` list, forgetting rows, R matrices, transfer metrics."""
+    for key in PHASE_FIGURES:
+        if key in part:
+            figures = _list(part[key], f"{where}, key {key!r}")
+            if len(figures) != phases:
+                raise RunDirError(f"{where}, key {key!r}: {len(figures)} figures for the {phases} phase(s) of "
+                                  f"'phases': {FIX}")
+            for index, value in enumerate(figures):
+                _figure(value, f"{where}, key {key!r}, item {index}")
+    for index, row in enumerate(_list(part.get("forgetting", []), f"{where}, key 'forgetting'")):
+        _row(row, f"{where}, key 'forgetting', item {index}", ("at_end_of", range(1, max(phases, 1))), schedule)
+    for level in LEVELS:
+        key = f"R_{level}"
+        if key in part:
+            for i, row in enumerate(_list(part[key], f"{where}, key {key!r}")):
+                for j, value in enumerate(_list(row, f"{where}, key {key!r}, row {i}")):
+                    _figure(value, f"{where}, key {key!r}, row {i}, item {j}")
+        for metric in ("ACC", "BWT", "FWT"):
+            if f"{metric}_{level}" in part:
+                _figure(part[f"{metric}_{level}"], f"{where}, key '{metric}_{level}'")
+    if "wall_time_s" in part:
+        _figure(part["wall_time_s"], f"{where}, key 'wall_time_s'")
+
+
+def _check_held_out(held: Any, where: str, schedule: list[str]) -> None:
+    """summary.json's ``held_out`` block: its episodes, its phases (the schedule's first tasks), the
+    scores of each controller per task and its figures (``_check_figures``)."""
+    if not isinstance(held, dict):
+        raise RunDirError(f"{where}: {_shown(held)} is {_kind(held)}, not an object: {FIX}")
+    episodes = held.get("episodes")
+    if not _is_integer(episodes) or episodes < 1:
+        raise RunDirError(f"{where}, key 'episodes': {_shown(episodes)} is not a positive integer: {FIX}")
+    phases = held.get("phases")
+    if not isinstance(phases, list) or phases != schedule[:len(phases)]:
+        raise RunDirError(f"{where}, key 'phases': {_shown(phases)} is not the first tasks of config.json's "
+                          f"schedule {schedule}: {FIX}")
+    scores = held.get("scores", {})
+    if not isinstance(scores, dict):
+        raise RunDirError(f"{where}, key 'scores': {_shown(scores)} is {_kind(scores)}, not an object: {FIX}")
+    for name, by_task in scores.items():
+        if not isinstance(by_task, dict):
+            raise RunDirError(f"{where}, key 'scores', {name!r}: {_shown(by_task)} is not an object of a score per "
+                              f"task: {FIX}")
+        for task, value in by_task.items():
+            _figure(value, f"{where}, key 'scores', {name!r}, {task!r}")
+    _check_figures(held, where, len(phases), schedule)
+
+
+def _list(value: Any, where: str) -> list:
+    if not isinstance(value, list):
+        raise RunDirError(f"{where}: {_shown(value)} is {_kind(value)}, not a list: {FIX}")
+    return value
+
+
+def _figure(value: Any, where: str) -> None:
+    """A figure: a number, or null where none was measured."""
+    if value is not None and not _is_number(value):
+        raise RunDirError(f"{where}: {_shown(value)} is {_kind(value)}, not a number: {FIX}")
+
+
+def _row(row: Any, where: str, phase_key: tuple[str, range], schedule: list[str]) -> None:
+    """A forgetting row or a stability-gap entry: an object whose ``phase_key`` names a phase in
+    its range, whose ``task`` is a task of the schedule, and whose every other value is a figure."""
+    if not isinstance(row, dict):
+        raise RunDirError(f"{where}: {_shown(row)} is {_kind(row)}, not an object: {FIX}")
+    key, phases = phase_key
+    if not _is_integer(row.get(key)) or row[key] not in phases:
+        raise RunDirError(f"{where}, {key!r}: {_shown(row.get(key))} is not a phase from {phases.start} to "
+                          f"{phases.stop - 1} of config.json's schedule: {FIX}")
+    if row.get("task") not in schedule:
+        raise RunDirError(f"{where}, 'task': {_shown(row.get('task'))} is not a task of config.json's schedule "
+                          f"({', '.join(dict.fromkeys(schedule))}): {FIX}")
+    for name, value in row.items():
+        if name not in (key, "task"):
+            _figure(value, f"{where}, {name!r}")
+
+
+def check_metrics(rows: list[dict[str, str]], path: Path, config: RunConfig) -> list[dict[str, str]]:
+    """metrics.csv ``rows`` (``rundir.read_metrics``'s, integer columns already checked), checked
+    against config.json's schedule: each row's ``task_index`` within it and its ``task`` the
+    schedule's task there, and each generation after the one before (a generation written twice,
+    or rows out of order, is another run's rows or a damaged file); RunDirError naming the line."""
+    schedule = [phase.name for phase in config.phases()]
+    previous = None
+    for line, row in enumerate(rows, start=2):
+        index, generation = int(row["task_index"]), int(row["generation"])
+        if index >= len(schedule):
+            raise RunDirError(f"{path} line {line}, column task_index: {index} is beyond the {len(schedule)} phases "
+                              f"of config.json's schedule {config.schedule!r} (0 to {len(schedule) - 1}): {FIX}")
+        if row["task"] != schedule[index]:
+            raise RunDirError(f"{path} line {line}, column task: {row['task']!r}, where config.json's schedule "
+                              f"{config.schedule!r} has {schedule[index]!r} at phase {index}: {FIX}")
+        if previous is not None and generation <= previous:
+            raise RunDirError(f"{path} line {line}, column generation: {generation} after generation {previous} on "
+                              f"line {line - 1}: each generation is written once, in order: {FIX}")
+        previous = generation
+    return rows
+
+
+def check_controller(exported: Any, path: Path, config: RunConfig) -> dict[str, Any]:
+    """An exported controller read from ``path``, if it is one that plays in ``config``'s arena
+    (``algorithms.check_export`` with its observation size); RunDirError naming the field otherwise."""
+    try:
+        check_export(exported, config.env_config().obs_dim)
+    except ExportError as error:
+        raise RunDirError(f"{path} is not a controller this run can play: {error}: {FIX}, or pick another "
+                          "controller") from None
+    return exported
