@@ -119,7 +119,7 @@ def check_summary(values: Any, path: Path, config: RunConfig) -> dict[str, Any]:
         if task != planned:
             raise RunDirError(f"{where}, item {index}: {task!r}, where config.json's schedule {config.schedule!r} "
                               f"has {planned!r}: the summary is another run's or damaged: {FIX}")
-    _check_figures(values, f"{path}", len(phases), schedule)
+    _check_figures(values, f"{path}", schedule)
     held = values.get("held_out")
     if held is not None:
         _check_held_out(held, f"{path}, key 'held_out'", schedule)
@@ -131,19 +131,16 @@ def check_summary(values: Any, path: Path, config: RunConfig) -> dict[str, Any]:
     return values
 
 
-def _check_figures(part: dict[str, Any], where: str, phases: int, schedule: list[str]) -> None:
+def _check_figures(part: dict[str, Any], where: str, schedule: list[str]) -> None:
     """The training figures of summary.json, or of its held-out block (``where`` names which):
-    a number per ended phase in each ``PHASE_FIGURES`` list, forgetting rows, R matrices, transfer metrics."""
+    the ``PHASE_FIGURES`` lists, forgetting rows (each at the end of a phase after the first),
+    R matrices, transfer metrics and the wall time."""
     for key in PHASE_FIGURES:
         if key in part:
-            figures = _list(part[key], f"{where}, key {key!r}")
-            if len(figures) != phases:
-                raise RunDirError(f"{where}, key {key!r}: {len(figures)} figures for the {phases} phase(s) of "
-                                  f"'phases': {FIX}")
-            for index, value in enumerate(figures):
+            for index, value in enumerate(_list(part[key], f"{where}, key {key!r}")):
                 _figure(value, f"{where}, key {key!r}, item {index}")
     for index, row in enumerate(_list(part.get("forgetting", []), f"{where}, key 'forgetting'")):
-        _row(row, f"{where}, key 'forgetting', item {index}", ("at_end_of", range(1, max(phases, 1))), schedule)
+        _row(row, f"{where}, key 'forgetting', item {index}", ("at_end_of", range(1, len(schedule))), schedule)
     for level in LEVELS:
         key = f"R_{level}"
         if key in part:
@@ -178,7 +175,7 @@ def _check_held_out(held: Any, where: str, schedule: list[str]) -> None:
                               f"task: {FIX}")
         for task, value in by_task.items():
             _figure(value, f"{where}, key 'scores', {name!r}, {task!r}")
-    _check_figures(held, where, len(phases), schedule)
+    _check_figures(held, where, schedule)
 
 
 def _list(value: Any, where: str) -> list:

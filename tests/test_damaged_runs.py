@@ -1,0 +1,300 @@
+"""The reading verbs against damaged or mismatched run directories (issue #59).
+
+Two finished smoke runs, NEAT and OpenAI-ES, are copied afresh for each check and one file of
+the copy is damaged. Every reading verb (``plot``, ``compare``, ``replay``, ``view``, ``score``,
+and ``--resume`` and ``--start-from`` where a run reads another) must then exit 0 or 2, print no
+traceback, give exactly one ``error:`` line on a refusal, and leave every file it does not own
+byte for byte (on a refusal: every file). One test per case the issue names (a traceback, or a
+damage accepted silently, before), then a property test whose damages hypothesis draws:
+truncation, JSON values of the wrong type, numbers out of range, unknown task names,
+duplicated rows and controllers of the wrong shape."""
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+from hypothesis import HealthCheck, event, given, settings
+from hypothesis import strategies as st
+
+from lifelong_evo.commands import view
+from lifelong_evo.commands.cli import main
+from tests.test_command_line_fuzz import SIZE, snapshot
+
+KINDS = {"neat": [], "es": ["--algo", "openai-es"]}
+"""The finished runs, by name, and the flags that made them beside ``SIZE``."""
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory) -> Path:
+    """A folder holding the finished runs ``neat`` and ``es`` (``KINDS``), never changed: copy them."""
+    out = tmp_path_factory.mktemp("finished")
+    for name, flags in KINDS.items():
+        assert main([*SIZE, *flags, "--out", str(out), "--name", name, "--quiet"]) == 0
+    return out
+
+
+@pytest.fixture
+def work(finished, tmp_path) -> Path:
+    """A fresh copy of the finished runs under ``runs/``, in a folder of its own."""
+    shutil.copytree(finished, tmp_path / "runs")
+    return tmp_path
+
+
+# ---------------------------------------------------------------------------------------------
+# Damages: each changes one file of a run directory
+
+
+def edit_json(name: str, change):
+    """A damage: ``change(value)`` applied to the JSON file ``name`` (relative to the run), in place."""
+    def damage(run: Path) -> None:
+        path = run / name
+        value = json.loads(path.read_text())
+        changed = change(value)
+        path.write_text(json.dumps(value if changed is None else changed))
+    return damage
+
+
+def setting(key: str, value):
+    return edit_json("config.json", lambda config: config.update({key: value}))
+
+
+def write(name: str, text: str):
+    def damage(run: Path) -> None:
+        (run / name).write_text(text)
+    return damage
+
+
+def truncate(name: str, keep: float = 0.5):
+    def damage(run: Path) -> None:
+        data = (run / name).read_bytes()
+        (run / name).write_bytes(data[:int(len(data) * keep)])
+    return damage
+
+
+def edit_metrics(change):
+    """A damage: ``change(lines)`` on metrics.csv's lines (header first)."""
+    def damage(run: Path) -> None:
+        path = run / "metrics.csv"
+        path.write_text("\n".join(change(path.read_text().splitlines())) + "\n")
+    return damage
+
+
+def set_cell(line: int, column: str, value: str):
+    def change(lines: list[str]) -> list[str]:
+        header = lines[0].split(",")
+        cells = lines[line].split(",")
+        cells[header.index(column)] = value
+        return [*lines[:line], ",".join(cells), *lines[line + 1:]]
+    return change
+
+
+def wrong_layer_sizes(controller: dict) -> None:
+    """Layer sizes that agree with the parameters' count, for 10 inputs where the arena has 41."""
+    controller["layer_sizes"] = [10, 16, 3]
+    controller["parameters"] = [0.1] * (10 * 16 + 16 + 16 * 3 + 3)
+
+
+def every_controller(change):
+    def damage(run: Path) -> None:
+        for path in sorted((run / "controllers").glob("*.json")):
+            edit_json(path.relative_to(run), change)(run)
+    return damage
+
+
+FINAL = "controllers/final-top.json"
+
+VERBS = {
+    "plot": lambda run, work: ["plot", str(run)],
+    "compare": lambda run, work: ["compare", str(run), "--out", str(work / "comparison")],
+    "replay": lambda run, work: ["replay", str(run), "--no-record", "--episodes", "1"],
+    "score": lambda run, work: ["score", str(run)],
+    "view": lambda run, work: ["view", str(run)],
+}
+"""Each reading verb's command line on ``run`` (what it writes goes into ``work``)."""
+
+CASES = [
+    # tracebacks before: sixteen (run, damage, verb)
+    ("summary.json []", "neat", write("summary.json", "[]"), ["plot", "compare"]),
+    ("summary.json phases out of range", "neat",
+     edit_json("summary.json", lambda s: s.update(phases=[*s["phases"], "green", "red"])), ["compare"]),
+    ("config.json []", "neat", write("config.json", "[]"), ["replay", "plot", "compare", "score"]),
+    ("config.json schedule with an unknown task", "neat", setting("schedule", "red:2,blue:2"),
+     ["replay", "compare", "score"]),
+    ("config.json population 'abc'", "neat", setting("population", "abc"), ["compare"]),
+    ("ES controller with wrong layer sizes", "es", every_controller(wrong_layer_sizes), ["replay", "score"]),
+    ("ES controller parameters a string", "es", edit_json(FINAL, lambda c: c.update(parameters="abc")), ["replay"]),
+    ("NEAT controller nodes a string", "neat", edit_json(FINAL, lambda c: c["genome"].update(nodes="abc")),
+     ["replay"]),
+    ("NEAT controller num_inputs not the run's", "neat", edit_json(FINAL, lambda c: c.update(num_inputs=10)),
+     ["replay"]),
+    # rewritten or accepted silently before
+    ("summary.json truncated", "neat", truncate("summary.json"), ["score"]),
+    ("summary.json []", "neat", write("summary.json", "[]"), ["score"]),
+    ("metrics.csv task not the schedule's", "neat", edit_metrics(set_cell(1, "task", "purple")), ["plot", "compare"]),
+    ("metrics.csv task_index beyond the schedule", "neat", edit_metrics(set_cell(1, "task_index", "7")),
+     ["plot", "compare"]),
+    ("metrics.csv generation written twice", "neat", edit_metrics(lambda lines: [*lines[:2], *lines[1:]]),
+     ["plot", "compare"]),
+    ("summary.json phases disagree with config.json", "neat",
+     edit_json("summary.json", lambda s: s.update(phases=["green", *s["phases"][1:]])), ["plot", "compare"]),
+]
+REFUSALS = [pytest.param(kind, damage, verb, id=f"{name}-{verb}") for name, kind, damage, verbs in CASES
+            for verb in verbs]
+
+
+def assert_refused(argv: list[str], work: Path, capsys) -> str:
+    """``argv`` exits 2 with exactly one line on stderr, ``error: ...``, and changes no file under ``work``."""
+    before = snapshot(work)
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 2, (argv, code, err)
+    assert err.startswith("error: ") and err.count("\n") == 1 and "Traceback" not in err, err
+    assert snapshot(work) == before, sorted(p for p in before.keys() | snapshot(work).keys()
+                                             if before.get(p) != snapshot(work).get(p))
+    return err
+
+
+@pytest.mark.parametrize(("kind", "damage", "verb"), REFUSALS)
+def test_a_damaged_run_is_refused_in_one_line_and_left_as_it_was(kind, damage, verb, work, capsys):
+    run = work / "runs" / kind
+    damage(run)
+    err = assert_refused(VERBS[verb](run, work), work, capsys)
+    assert str(run) in err, "the line names the file"
+
+
+def test_the_undamaged_runs_pass_every_verb(work, capsys):
+    """The checks refuse only damage: each verb that reads a run's files reads each finished run as
+    it was written."""
+    for kind in KINDS:
+        for verb in ("plot", "compare", "replay", "score"):
+            assert main(VERBS[verb](work / "runs" / kind, work)) == 0, (kind, verb, capsys.readouterr().err)
+
+
+def test_score_keeps_the_summary_it_rewrites(work):
+    """``score`` rewrites only summary.json's held-out block: every other key is kept as it was."""
+    path = work / "runs" / "es" / "summary.json"
+    before = json.loads(path.read_text())
+    assert main(["score", str(path.parent)]) == 0
+    after = json.loads(path.read_text())
+    assert {k: v for k, v in after.items() if k != "held_out"} == {k: v for k, v in before.items() if k != "held_out"}
+
+
+# ---------------------------------------------------------------------------------------------
+# Generated damages, every reading verb
+
+
+class NoViewer:
+    """Stands in for the Rerun viewer process that ``view`` starts: it has closed at once."""
+
+    def __init__(self, *args, **kwargs):
+        pass
+
+    def wait(self) -> int:
+        return 0
+
+    def poll(self) -> int:
+        return 0
+
+
+NO_VIEWER = SimpleNamespace(Popen=NoViewer, DEVNULL=subprocess.DEVNULL)
+"""``view``'s ``subprocess`` module, as the tests give it (only ``view``'s: git and the rest run as ever)."""
+
+
+WRONG_VALUES = st.sampled_from([[], {}, "abc", "", None, True, -1, 0, 10 ** 30, 1.5, ["red"], [[]], {"a": 1}])
+"""JSON values of the wrong type or out of range for most keys."""
+FILES = ["config.json", "summary.json", "metrics.csv", FINAL, "controllers/task0-red-top.json"]
+
+
+@st.composite
+def damages(draw):
+    """(a description, a damage) to one file of a run."""
+    name = draw(st.sampled_from(FILES))
+    how = draw(st.sampled_from(["truncate", "wrong value", "out of range", "unknown task", "duplicate row",
+                                "controller shape"]))
+    if how == "truncate":
+        keep = draw(st.floats(0, 0.99))
+        return f"{name} cut to {keep:.2f}", truncate(name, keep)
+    if name == "metrics.csv" or how == "duplicate row":
+        line = draw(st.integers(1, 6))
+        column = draw(st.sampled_from(["task", "task_index", "generation", "generation_in_task", "best"]))
+        value = draw(st.sampled_from(["purple", "blue", "7", "-1", "", "1e400", "0"]))
+        if how == "duplicate row":
+            return f"metrics.csv line {line} twice", edit_metrics(lambda lines: [*lines[:line + 1], *lines[line:]])
+        return f"metrics.csv line {line} {column}={value!r}", edit_metrics(set_cell(line, column, value))
+    if name.startswith("controllers/"):
+        key = draw(st.sampled_from(["layer_sizes", "parameters", "num_inputs", "num_outputs", "genome", "format",
+                                    "unconnected_outputs", "nodes", "connections"]))
+        value = draw(st.one_of(WRONG_VALUES, st.just([41, 8, 3]), st.just([1, 3])))
+        if how == "controller shape" and key in ("nodes", "connections"):
+            return f"{name} genome.{key}={value!r}", edit_json(name, lambda c: c.get("genome", {}).update({key: value}))
+        return f"{name} {key}={value!r}", edit_json(name, lambda c: c.update({key: value}))
+    keys = {"config.json": ["schedule", "population", "generations", "seed", "env", "algo_options", "algo", "reg",
+                            "held_out_episodes", "rehearsal", "evals"],
+            "summary.json": ["phases", "current", "current_top", "forgetting", "R_pop", "ACC_top", "held_out",
+                             "stability_gap", "wall_time_s", "centre_current"]}[name]
+    key = draw(st.sampled_from(keys))
+    if how == "unknown task":
+        value = {"config.json": "red:2,blue:2", "summary.json": ["red", "blue"]}[name]
+    elif how == "out of range":
+        value = draw(st.sampled_from([10 ** 9, -5, ["red", "green", "red", "green", "red"], "red:0"]))
+    else:
+        value = draw(WRONG_VALUES)
+    return f"{name} {key}={value!r}", edit_json(name, lambda d: d.update({key: value}))
+
+
+def command(kind: str, verb: str, work: Path) -> list[str]:
+    """The command line of ``verb`` on run ``kind`` in ``work``."""
+    run = work / "runs" / kind
+    if verb == "--resume":
+        return [*SIZE, *KINDS[kind], "--out", str(work / "runs"), "--name", kind, "--resume", "--quiet"]
+    if verb == "--start-from":
+        return [*SIZE, *KINDS[kind], "--reg", "1", "--out", str(work / "runs"), "--name", "taker", "--start-from",
+                str(run), "--quiet"]
+    return VERBS[verb](run, work)
+
+
+def owns(kind: str, verb: str, path: str) -> bool:
+    """Whether ``verb`` on run ``kind`` may write ``path`` (relative to its work folder) when it
+    does not refuse: the run it continues, the run it starts, the files it is there to write."""
+    path = Path(path)
+    run = Path("runs", kind)
+    owned = {"--resume": run, "--start-from": Path("runs", "taker"), "compare": Path("comparison"),
+             "score": run / "summary.json"}.get(verb)
+    if verb == "plot":
+        return path.parent == run and path.suffix == ".png"
+    return owned is not None and (path == owned or owned in path.parents)
+
+
+@settings(max_examples=40, deadline=None, derandomize=True, database=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(kind=st.sampled_from(list(KINDS)), verb=st.sampled_from([*VERBS, "--resume", "--start-from"]),
+       damage=damages())
+def test_every_reading_verb_refuses_damage_in_one_line_or_reads_it(kind, verb, damage, finished, tmp_path_factory,
+                                                                   capsys, monkeypatch):
+    described, apply = damage
+    work = tmp_path_factory.mktemp("damaged")
+    shutil.copytree(finished, work / "runs")
+    apply(work / "runs" / kind)
+    monkeypatch.setattr(view, "subprocess", NO_VIEWER)  # view reads, and starts no viewer
+    argv = command(kind, verb, work)
+    before = snapshot(work)
+    try:
+        code = main(argv)
+    finally:
+        monkeypatch.undo()
+    err = capsys.readouterr().err
+    after = snapshot(work)
+    shutil.rmtree(work)
+    event(f"{verb}: exit {code}")
+    assert code in (0, 2), (described, argv, code, err)
+    assert "Traceback" not in err, (described, argv, err)
+    if code == 2:
+        assert err.startswith("error: ") and err.count("\n") == 1, (described, argv, err)
+        assert after == before, (described, argv)
+    else:
+        changed = [p for p in before.keys() | after.keys() if before.get(p) != after.get(p)]
+        assert all(owns(kind, verb, p) for p in changed), (described, argv, changed)
