@@ -4,11 +4,10 @@ Two finished smoke runs, NEAT and OpenAI-ES, are copied afresh for each check an
 the copy is damaged. Every reading verb (``plot``, ``compare``, ``replay``, ``view``, ``score``,
 and ``--resume`` and ``--start-from`` where a run reads another) must then exit 0 or 2, print no
 traceback, give exactly one ``error:`` line on a refusal, and leave every file it does not own
-byte for byte (a verb that only reads, on a refusal:
-every file). One test per case the issue names (a traceback, or a
-damage accepted silently, before), then a property test whose damages hypothesis draws:
-truncation, JSON values of the wrong type, numbers out of range, unknown task names,
-duplicated rows and controllers of the wrong shape."""
+byte for byte (a verb that only reads, on a refusal: every file). One test per case the issue
+names (a traceback, or a damage accepted silently, before), then a property test whose damages
+hypothesis draws: truncation, JSON values of the wrong type, numbers out of range, unknown task
+names, duplicated rows and controllers of the wrong shape."""
 from __future__ import annotations
 
 import json
