@@ -6,7 +6,10 @@ the logistic sigmoid on the 3 outputs (so outputs lie in ``[0, 1]``, as ``Batche
 Flat parameter layout (``layer_sizes = (n_0, n_1, ..., n_L)``, ``n_0 = obs_dim``, ``n_L = 3``):
 for each layer ``l = 1..L`` in order, the weight matrix ``W_l`` of shape ``(n_l, n_{l-1})``
 (``(out, in)``, row-major, the ``torch.nn.Linear.weight`` layout), then its bias ``b_l`` of
-length ``n_l``. Layer ``l`` computes ``act(x @ W_l.T + b_l)``. With the default ``(41, 16, 3)``
+length ``n_l``. Layer ``l`` computes ``act(x @ W_l.T + b_l)``, with the portable arithmetic of
+``envs.numerics``: the product exact on its grid (inputs clipped to [-1, 1], weights to
+[-128, 128]) and the activations from its tables, so a controller gives the same outputs on
+every CPU. With the default ``(41, 16, 3)``
 that is ``41*16 + 16 + 16*3 + 3 = 723`` parameters.
 """
 from __future__ import annotations
@@ -14,6 +17,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
+
+from envs import numerics
 
 from .base import ExportError, is_integer, is_number, shown_value
 
@@ -59,8 +64,8 @@ class MLPPolicy:
     """``BatchedPolicy`` over ``P`` MLPs given as rows of ``params`` ``(P, n_parameters)``.
 
     ``policy(obs)`` maps ``(P, E, A, obs_dim)`` to ``(P, E, A, 3)``: controller ``p`` sees
-    ``obs[p]``. Each layer is one ``torch.baddbmm`` over ``(P, E*A, in)``; runs on the device
-    of ``params``.
+    ``obs[p]``. Each layer is one exact batched product over ``(P, E*A, in)``
+    (``numerics.exact_bmm``); runs on the device of ``params``.
     """
 
     def __init__(self, params: torch.Tensor, layer_sizes: Sequence[int]):
@@ -69,9 +74,8 @@ class MLPPolicy:
         self.layer_sizes = tuple(int(s) for s in layer_sizes)
         self.params = params
         self.population_size = int(params.shape[0])
-        # (P, in, out) weights and (P, 1, out) biases, made contiguous once here: a contiguous
-        # right operand makes baddbmm faster than the transposed view on CPU
-        self._layers = [(w.transpose(1, 2).contiguous(), b.unsqueeze(1).contiguous())
+        # (P, in, out) weights on numerics.exact_bmm's grid and (P, 1, out) biases, once here
+        self._layers = [(numerics.grid_weights(w.transpose(1, 2)), b.unsqueeze(1))
                         for w, b in unflatten(params, self.layer_sizes)]
 
     def __call__(self, observations: torch.Tensor) -> torch.Tensor:
@@ -83,9 +87,9 @@ class MLPPolicy:
         p, e, a, d = observations.shape
         x = observations.to(self.params.dtype).reshape(p, e * a, d)
         last = len(self._layers) - 1
-        for i, (w_t, b) in enumerate(self._layers):
-            x = torch.baddbmm(b, x, w_t)  # a fresh tensor: the in-place activations are safe
-            x = x.sigmoid_() if i == last else x.tanh_()
+        for i, (w_grid, b) in enumerate(self._layers):
+            x = numerics.exact_bmm(x, w_grid, b)
+            x = numerics.sigmoid(x) if i == last else numerics.tanh(x)
         return x.reshape(p, e, a, N_OUTPUTS)
 
     def shard(self, start: int, stop: int) -> "MLPPolicy":

@@ -24,6 +24,7 @@ import torch
 
 from .config import AGENT, WALL, ConfigError, ForagingConfig, Task
 from .execution import StepExecution
+from . import numerics
 from .sensing import OrderKeys, batch_first, distance, one_hot_rows
 from .state import Arena, ForagingState
 
@@ -64,7 +65,6 @@ class ForagingEnv(StepExecution):
         self.device = torch.device(device)
         self.dtype = dtype
         c = self.config
-        self._kinematics_t = torch.tensor(KINEMATICS, dtype=dtype, device=self.device).T.contiguous()
         self._slot_type_offsets = (torch.arange(c.n_neighbors, device=self.device) * c.n_types)[:, None, None]
         self._box_ids = torch.arange(c.n_boxes, dtype=torch.int32, device=self.device)[:, None]
         self._cells_per_row = math.ceil(c.size) + 1  # box coordinates are integers in [0, size]
@@ -274,14 +274,13 @@ class ForagingEnv(StepExecution):
         s_sin = wall_sin + (o_dy / safe) * (other_seen & ~on_top)
         s_cos = wall_cos + (o_dx / safe) * (other_seen & ~on_top) + (other_seen & on_top)
         s_kind = WALL * wall_seen + kind.gather(0, other).view(n, A, B) * other_seen
-        heading_rad = torch.deg2rad(heading)
         carried = (color.gather(0, carrying.clamp(min=0)) - 2) * (carrying >= 0)           # (A, B)
         parts = torch.cat((
             one_hot_rows(s_kind + self._slot_type_offsets, n * c.n_types, self.dtype),
             s_dist * (seen / rng),
             s_sin,
             s_cos,
-            torch.sin(heading_rad)[None], torch.cos(heading_rad)[None],
+            *(part[None] for part in numerics.sin_cos_degrees(heading)),
             one_hot_rows(carried[None], c.n_colors + 1, self.dtype),
             (target == self._color_ids)[:, None].to(self.dtype).expand(-1, A, -1),
         ))                                                                                 # (obs_dim, A, B)
@@ -306,7 +305,7 @@ class ForagingEnv(StepExecution):
         c = self.config
         active = ~done
         # kinematics in the arena frame; an ended environment stays frozen
-        velocity = (wheels.to(self.dtype) @ self._kinematics_t).permute(2, 1, 0)     # (3, A, B)
+        velocity = self._kinematics(wheels.to(self.dtype).permute(2, 1, 0))                # (3, A, B)
         moving = active.to(self.dtype) * c.time_step
         ax = (ax + velocity[0] * moving).clamp(0.0, c.size)
         ay = (ay + velocity[1] * moving).clamp(0.0, c.size)
@@ -379,6 +378,13 @@ class ForagingEnv(StepExecution):
         info = {"picked": picked.T.long(), "dropped": dropped.T.long(), "drop_correct": drop_correct.T,
                 "respawn_cell": respawn.transpose(0, 1).long(), "terminated": terminated, "truncated": truncated}
         return observations, reward.to(self.dtype), arena, info
+
+    def _kinematics(self, wheels: torch.Tensor) -> torch.Tensor:
+        """``KINEMATICS @ wheels`` for wheel speeds ``(3, A, B)``, summed term by term in a fixed
+        order (a matrix product's order is its BLAS's choice, which differs between CPUs)."""
+        k = KINEMATICS
+        return torch.stack([(wheels[0] * k[row][0] + wheels[1] * k[row][1]) + wheels[2] * k[row][2]
+                            for row in range(3)])
 
     def _box_flags(self, box_index: torch.Tensor) -> torch.Tensor:
         """(A, B) box indices (-1 for none) -> (K, B) int32: 1 where some agent names the box."""

@@ -13,6 +13,8 @@ from collections.abc import Sequence
 
 import torch
 
+from . import numerics
+
 
 class OrderKeys:
     """Integer order keys for (distance, candidate index) pairs, so that ``amin`` finds the
@@ -69,9 +71,9 @@ class OrderKeys:
 
 
 def distance(dx: torch.Tensor, dy: torch.Tensor) -> torch.Tensor:
-    """Euclidean distance; every distance of the env goes through here, so equal inputs give
-    equal floats wherever they are computed."""
-    return torch.sqrt(dx * dx + dy * dy)
+    """Euclidean distance, correctly rounded (``numerics.sqrt``); every distance of the env goes
+    through here, so equal inputs give equal floats wherever and however they are computed."""
+    return numerics.sqrt(dx * dx + dy * dy)
 
 
 def one_hot_rows(index: torch.Tensor, n_rows: int, dtype: torch.dtype) -> torch.Tensor:

@@ -56,6 +56,8 @@ from typing import Literal, Sequence
 import torch
 from neat.graphs import feed_forward_layers, required_for_output
 
+from envs import numerics
+
 UnconnectedOutputs = Literal["zero", "bias"]
 UNCONNECTED_OUTPUTS_MODES: tuple[str, ...] = ("zero", "bias")
 
@@ -151,6 +153,9 @@ class CompiledPopulation:
         self.population_size = int(w_in.shape[0])
         self.n_inputs = int(w_in.shape[1])
         self.n_outputs = int(w_in.shape[2]) - n_hidden
+        # the weights on numerics.exact_bmm's grid, once per generation
+        self._w_in_grid = numerics.grid_weights(w_in)
+        self._block_grids = [None if w is None else numerics.grid_weights(w) for _, _, w in blocks]
 
     @property
     def device(self) -> torch.device:
@@ -184,33 +189,23 @@ class CompiledPopulation:
             x = observations.reshape(P, E * A, n)
             if x.dtype != self.dtype:
                 x = x.to(self.dtype)
-            # input part of every slot, (P, E*A, N), then + bias, moved to (P, N, E*A)
-            # (x @ w is much faster than w^T @ x^T, which falls off a cliff for 56+ inputs)
-            z = torch.empty(P, self.w_in.shape[2], E * A, dtype=self.dtype, device=self.device)
-            torch.add(torch.bmm(x, self.w_in).mT, self.bias, out=z)
-            for start, stop, w in self.blocks[:-1]:  # hidden depths
-                if w is None:  # depth 1: inputs and bias only
-                    z[:, start:stop].sigmoid_()
-                else:
-                    block = z[:, start:stop]
-                    torch.sigmoid(_add_weighted(block, w, z, start), out=block)
-            start, _stop, w = self.blocks[-1]  # outputs
-            pre = z[:, start:] if w is None else _add_weighted(z[:, start:], w, z, start)
-            out = torch.empty(P, E * A, self.n_outputs, dtype=z.dtype, device=z.device)
-            out.mT.copy_(pre.sigmoid_())  # (faster than a sigmoid that writes transposed)
-            return out.view(P, E, A, self.n_outputs)
+            # input part of every slot plus the bias, (P, E*A, N), moved to (P, N, E*A)
+            z = numerics.exact_bmm(x, self._w_in_grid, self.bias.mT).mT.contiguous()
+            for (start, stop, _), w_grid in zip(self.blocks[:-1], self._block_grids):  # hidden depths
+                block = z[:, start:stop]
+                block.copy_(numerics.sigmoid(block if w_grid is None else _add_weighted(block, w_grid, z, start)))
+            start, _stop, _ = self.blocks[-1]  # outputs
+            w_grid = self._block_grids[-1]
+            pre = z[:, start:] if w_grid is None else _add_weighted(z[:, start:], w_grid, z, start)
+            return numerics.sigmoid(pre).mT.contiguous().view(P, E, A, self.n_outputs)
 
 
-def _add_weighted(base: torch.Tensor, w: torch.Tensor, z: torch.Tensor, start: int) -> torch.Tensor:
-    """``base + w @ z[:, :start]`` as a new tensor. aten's CPU bmm switches to a slow scalar
-    kernel for matrices with fewer than 400 multiply-adds, which very few sources (an early
-    generation, a thin depth) easily give; a few broadcast multiply-adds are faster there."""
-    if start <= 3 and start * w.shape[1] * z.shape[2] < 400:
-        out = torch.addcmul(base, w[:, :, 0:1], z[:, 0:1])
-        for j in range(1, start):
-            out.addcmul_(w[:, :, j:j + 1], z[:, j:j + 1])
-        return out
-    return torch.baddbmm(base, w, z[:, :start])
+def _add_weighted(base: torch.Tensor, w_grid: torch.Tensor, z: torch.Tensor, start: int) -> torch.Tensor:
+    """``base + w @ z[:, :start]`` as a new tensor, with ``w @ z`` exact (``numerics.exact_bmm``,
+    here with the weights on the left)."""
+    sources = numerics.input_grid(z[:, :start])
+    total = torch.bmm(w_grid, sources) * numerics.GRID_UNIT + base.to(torch.float64)
+    return total.to(base.dtype)
 
 
 # --------------------------------------------------------------------------------------------
