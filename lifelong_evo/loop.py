@@ -154,7 +154,7 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
         state = _resume(config, run_dir, optimizer, generator)
     else:
         state = LoopState()
-        source = _first_task_of(start_from, config) if start_from is not None else None
+        source = _first_task_of(start_from, config, run_dir) if start_from is not None else None
         lock = run_dir.create(overwrite)
         run_dir.write_config(config)
         if source is not None:
@@ -366,11 +366,16 @@ def _checkpoint_payload(config, optimizer, generator, state) -> dict[str, Any]:
                      "wall_time_s": state.wall_time_s, "machines": state.machines}}
 
 
-def _first_task_of(source: RunDir, config: RunConfig) -> dict[str, Any]:
-    """The checkpoint of ``source``'s first task end, once checked that a run of ``config`` may
-    start from it: the two differ in nothing that changes a number but lambda, which no optimiser
-    uses before its first reference (taken at that task end, whatever lambda is); ResumeError,
-    before anything is written, otherwise."""
+def check_start_from(config: RunConfig, run_dir: RunDir, source: RunDir) -> None:
+    """ResumeError, before anything is written, unless a run of ``config`` into ``run_dir`` may
+    take over ``source``'s first task: ``source`` is another run directory than ``run_dir`` (by any
+    path: ``--overwrite`` would empty it before it is read), keeps its first task's end, and the
+    two differ in nothing that changes a number but lambda, which no optimiser uses before its
+    first reference (taken at that task end, whatever lambda is)."""
+    if source.is_same_directory(run_dir):
+        raise ResumeError(f"--start-from {source.path} is the run directory this run writes ({run_dir.path}): "
+                          "a run cannot take over its own first task (--overwrite would delete it before it is "
+                          "read): give this run another --name, or --out")
     different = source.first_task_differences(config.to_dict())
     if different:
         raise ResumeError(f"--start-from {source.path}: that run differs from this one in more than lambda, "
@@ -382,7 +387,13 @@ def _first_task_of(source: RunDir, config: RunConfig) -> dict[str, Any]:
         raise ResumeError(f"--start-from {source.path}: it keeps no checkpoint of its first task's end ({path} "
                           "is missing: it has not reached it, or was made before runs kept it): start this run "
                           "without --start-from")
-    return checkpoint.load(path)
+
+
+def _first_task_of(source: RunDir, config: RunConfig, run_dir: RunDir) -> dict[str, Any]:
+    """The checkpoint of ``source``'s first task end, once checked (``check_start_from``) that a
+    run of ``config`` into ``run_dir`` may start from it."""
+    check_start_from(config, run_dir, source)
+    return checkpoint.load(source.first_task_end)
 
 
 def _take_first_task(config: RunConfig, run_dir: RunDir, source: RunDir, payload: dict[str, Any], optimizer,

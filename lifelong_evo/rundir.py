@@ -281,6 +281,14 @@ class RunDir:
         folder name (``check_run_name``)."""
         return cls(check_out_folder(out) / check_run_name(name, what, **fix))
 
+    def is_same_directory(self, other: RunDir) -> bool:
+        """Whether ``other`` names this directory, by whatever path: relative or absolute, with a
+        trailing slash or ``..``, through a symbolic link (the file system decides where both exist)."""
+        try:
+            return os.path.samefile(self.path, other.path)
+        except OSError:  # one of them does not exist (yet): where they would be
+            return self.path.resolve() == other.path.resolve()
+
     def lock(self) -> RunLock:
         """This existing run directory's lock, taken (RunDirInUseError where another process holds
         it): one writer per run directory. ``create`` takes it for a new run."""

@@ -239,6 +239,42 @@ def test_resume_and_overwrite_together_are_refused(work, capsys):
     assert snapshot(work.parent) == before
 
 
+SAME_RUN = {"as-named": "runs/first", "dotted": "./runs/first/", "through-parent": "runs/../runs/first",
+            "absolute": None, "link": "link-to-first"}
+"""Spellings of runs/first for --start-from (None: its absolute path)."""
+
+
+@pytest.mark.parametrize("out", ["runs", "absolute"])
+@pytest.mark.parametrize("source", SAME_RUN)
+def test_overwrite_never_deletes_the_run_it_starts_from(work, source, out, capsys):
+    """``--start-from runs/A --name A --overwrite`` emptied A, then crashed reading A's controllers
+    (KeyError, exit 1): every file of the run was gone. Refused, however the two paths are spelt."""
+    (work / "link-to-first").symlink_to(work / "runs" / "first")
+    given = SAME_RUN[source] or str(work / "runs" / "first")
+    before = snapshot(work.parent)
+    out_folder = str(work / "runs") if out == "absolute" else "runs"
+    for overwrite in (["--overwrite"], []):
+        err = refused([*RUN, "--reg", "1", "--start-from", given, "--out", out_folder, "--name", "first", *overwrite],
+                      capsys)
+        assert f"--start-from {Path(given)} is the run directory this run writes" in err, err
+        assert "cannot take over its own first task" in err and "give this run another --name" in err, err
+        assert snapshot(work.parent) == before
+
+
+def test_a_sweep_trial_never_starts_from_its_own_directory(work, capsys):
+    """A trial reached through a link among the first-task sources of ``--share-first-task``
+    (``--first-task-from``) is not a source of itself: it runs its first task, its own run intact
+    until its ``--overwrite`` deletes it as asked."""
+    trial = work / "runs" / "grid" / "first"
+    trial.parent.mkdir()
+    shutil.move(work / "runs" / "first", trial)
+    (work / "link-to-trial").symlink_to(trial)
+    values = {**RunDir(trial).read_config().to_dict(), "reg": 1.0}
+    result = run_trial(values, str(trial), overwrite=True, first_task_sources=[str(work / "link-to-trial")])
+    assert result["status"] == "done" and result["first_task_from"] == "", result
+    assert json.loads((trial / "config.json").read_text())["reg"] == 1.0
+
+
 # --------------------------------------------------------------------------------- one writer per run
 
 @pytest.mark.parametrize("flags", [[], ["--resume"], ["--resume", "--record"], ["--overwrite"],
