@@ -22,6 +22,7 @@ import torch
 from algorithms import REGISTRY
 from lifelong_evo.commands.cli import main
 from lifelong_evo.metrics import Retention, retention, summarise
+from tests.test_nothing_lost import snapshot
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -456,6 +457,19 @@ def test_resume_takes_the_original_command(smoke_runs, tmp_path, capsys):
     assert "--population 50 (stored: 20)" in err and "--env duration=100 (stored: 60)" in err
     assert main([*original, "--name", "neat", "--resume", "--option", "genetics=2.0"]) == 2
     assert "--option genetics='2.0' (stored: '0.92')" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("run, other", [("openai-es", "neat"), ("neat", "openai-es")])
+def test_resume_with_another_algo_names_only_the_algo(smoke_runs, run, other, capsys):
+    """``--resume --algo neat`` on an OpenAI-ES run listed the eight options of the two optimisers
+    (``--option sigma=None (stored: 0.1)``, ...) that nobody typed, and said to drop them."""
+    before = snapshot(smoke_runs)
+    assert main(["--resume", "--out", str(smoke_runs), "--name", run, "--algo", other, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"error: {smoke_runs / run} was run with other settings than these: --algo {other!r} (stored: "
+                   f"{run!r}): continue it with its stored settings (drop those flags or give the stored values), "
+                   "or start a new run (another --name, or --overwrite to replace it)\n")
+    assert snapshot(smoke_runs) == before
 
 
 def test_ctrl_c_prints_the_command_that_resumes(tmp_path):
