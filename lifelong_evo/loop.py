@@ -26,6 +26,7 @@ import shutil
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable, Generator, Iterator, Sequence
 
 import torch
@@ -438,11 +439,38 @@ def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopSta
     try:
         payload = checkpoint.load(path)
     except checkpoint.CorruptCheckpointError as error:
-        advice = (f"delete it to resume from {found[-2].name}, the checkpoint before it" if len(found) > 1
-                  else "no earlier checkpoint is left: delete it to resume from generation 0")
-        raise checkpoint.CorruptCheckpointError(f"{error}; {advice}") from None
+        raise checkpoint.CorruptCheckpointError(f"{error}; {_damaged_checkpoint_advice(found)}") from None
     if "pickle" in (payload.get("optimizer") or {}):
         raise checkpoint.older_version_error(path)
     if RunConfig.outcome_settings(payload.get("config") or {}) != RunConfig.outcome_settings(config.to_dict()):
         raise ResumeError(f"checkpoint {path} belongs to another configuration: delete it or start a new run")
     return _load_state(payload, optimizer, generator)
+
+
+def _damaged_checkpoint_advice(found: list[Path]) -> str:
+    """What to do when the newest of the checkpoints ``found`` (oldest first) is damaged: delete
+    it, and any damaged one before it, to resume from the newest that can be read; with none
+    readable, delete them all to resume from generation 0 (first-task-end.pt is no checkpoint
+    ``--resume`` reads, and is kept for the runs that start from it)."""
+    *earlier, newest = found
+    damaged = [newest]
+    for candidate in reversed(earlier):
+        try:
+            checkpoint.load(candidate)
+        except checkpoint.CheckpointError:
+            damaged.insert(0, candidate)
+            continue
+        if len(damaged) == 1:
+            return f"delete it to resume from {candidate.name}, the checkpoint before it"
+        return (f"{_names(damaged[:-1])} before it cannot be read either: delete {_names(damaged)} to resume from "
+                f"{candidate.name}")
+    if len(damaged) == 1:
+        return "no earlier checkpoint is left: delete it to resume from generation 0"
+    return (f"{_names(damaged[:-1])} before it cannot be read either, so no checkpoint is left: delete "
+            f"{_names(damaged)}, and --resume starts again from generation 0")
+
+
+def _names(paths: list[Path]) -> str:
+    """``a.pt``, ``a.pt and b.pt``, ``a.pt, b.pt and c.pt``."""
+    names = [path.name for path in paths]
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"

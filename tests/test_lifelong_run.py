@@ -297,6 +297,37 @@ def test_truncated_last_checkpoint_then_none(smoke_runs, tmp_path, capsys):
     _same_numbers(run, smoke_runs / "neat")
 
 
+def test_every_checkpoint_damaged_says_none_is_left(smoke_runs, tmp_path, capsys):
+    """Both checkpoints damaged: the advice named the one before the newest, damaged too. It says
+    none can be read, names both to delete (not first-task-end.pt, which --resume does not read
+    and the runs that start from this one need) and what --resume then does, which it does."""
+    run = _copy(smoke_runs, tmp_path)
+    earlier, latest = sorted(run.glob("checkpoints/generation-*.pt"))
+    readable = run / "checkpoints" / "generation-000001.pt"  # a readable one before both (a run keeps two)
+    shutil.copyfile(earlier, readable)
+    earlier.write_bytes(earlier.read_bytes()[:-1000])
+    data = bytearray(latest.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    latest.write_bytes(bytes(data))
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 2
+    assert capsys.readouterr().err.endswith(
+        f"; {earlier.name} before it cannot be read either: delete {earlier.name} and {latest.name} to resume from "
+        f"{readable.name}\n")
+    readable.unlink()
+    before = snapshot(run)
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 2
+    assert capsys.readouterr().err == (
+        f"error: checkpoint {latest} is corrupt or truncated (its checksum does not match); {earlier.name} before "
+        f"it cannot be read either, so no checkpoint is left: delete {earlier.name} and {latest.name}, and --resume "
+        "starts again from generation 0\n")
+    assert snapshot(run) == before
+    earlier.unlink()
+    latest.unlink()
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 0
+    assert capsys.readouterr().err == f"note: no checkpoint in {run / 'checkpoints'}: resuming from generation 0\n"
+    _same_numbers(run, smoke_runs / "neat")
+
+
 @pytest.mark.parametrize("signed", [True, False])
 def test_checkpoint_of_the_older_signed_format_is_refused(smoke_runs, tmp_path, capsys, signed):
     """Checkpoints of the version that pickled NEAT's state behind an HMAC tag: one line that says
