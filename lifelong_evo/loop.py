@@ -369,14 +369,18 @@ def _checkpoint_payload(config, optimizer, generator, state) -> dict[str, Any]:
 
 def check_start_from(config: RunConfig, run_dir: RunDir, source: RunDir) -> None:
     """ResumeError, before anything is written, unless a run of ``config`` into ``run_dir`` may
-    take over ``source``'s first task: ``source`` is another run directory than ``run_dir`` (by any
-    path: ``--overwrite`` would empty it before it is read), keeps its first task's end, and the
-    two differ in nothing that changes a number but lambda, which no optimiser uses before its
-    first reference (taken at that task end, whatever lambda is)."""
+    take over ``source``'s first task: ``source`` is another run directory than ``run_dir``, by any
+    path, and not inside it (``--overwrite`` would empty it before it is read), keeps its first
+    task's end, and the two differ in nothing that changes a number but lambda, which no optimiser
+    uses before its first reference (taken at that task end, whatever lambda is)."""
     if source.is_same_directory(run_dir):
         raise ResumeError(f"--start-from {source.path} is the run directory this run writes ({run_dir.path}): "
                           "a run cannot take over its own first task (--overwrite would delete it before it is "
                           "read): give this run another --name, or --out")
+    if run_dir.path.resolve() in source.path.resolve().parents:
+        raise ResumeError(f"--start-from {source.path} lies inside the run directory this run writes "
+                          f"({run_dir.path}), which --overwrite would empty before it is read: give this run "
+                          "another --name, or --out")
     different = source.first_task_differences(config.to_dict())
     if different:
         raise ResumeError(f"--start-from {source.path}: that run differs from this one in more than lambda, "

@@ -261,6 +261,16 @@ def test_overwrite_never_deletes_the_run_it_starts_from(work, source, out, capsy
         assert snapshot(work.parent) == before
 
 
+def test_overwrite_never_deletes_a_run_inside_it_that_it_starts_from(work, capsys):
+    """A run copied into another one's directory goes with that run's --overwrite."""
+    shutil.copytree(work / "runs" / "second", work / "runs" / "first" / "inner")
+    before = snapshot(work.parent)
+    err = refused([*RUN, "--reg", "1", "--start-from", "runs/first/inner", "--name", "first", "--overwrite"], capsys)
+    assert f"--start-from {Path('runs/first/inner')} lies inside the run directory this run writes " \
+        f"({Path('runs/first')}), which --overwrite would empty before it is read: give this run another --name" in err
+    assert snapshot(work.parent) == before
+
+
 def test_a_sweep_trial_never_starts_from_its_own_directory(work, capsys):
     """A trial reached through a link among the first-task sources of ``--share-first-task``
     (``--first-task-from``) is not a source of itself: it runs its first task, its own run intact
