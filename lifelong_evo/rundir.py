@@ -59,6 +59,9 @@ MARKER = ".lifelong-evo-run"
 a directory that holds it."""
 LOCK = ".lock"
 """The file in every run directory that the process writing the run holds locked (``RunLock``)."""
+SWEEP_FILE = "sweep.json"
+"""The file a sweep writes first into its folder (``commands/sweep.py``): a folder with it is a
+sweep's, whose run directories are its trials inside it, and never a run directory itself."""
 
 
 class RunDirError(UserError):
@@ -260,6 +263,12 @@ def lock_holder(lock_file: Path) -> str:
         return "another process"
 
 
+def run_directory_around(path: Path) -> Path | None:
+    """The run directory (it holds the ``MARKER``) that ``path`` lies inside, if any: a run's
+    ``--overwrite`` deletes everything in it."""
+    return next((folder for folder in Path(path).resolve().parents if (folder / MARKER).is_file()), None)
+
+
 class RunDir:
     """The files of one run directory, and the rules for making, writing and reading them."""
 
@@ -308,13 +317,30 @@ class RunDir:
             os.close(fd)
         return None
 
+    def holds_a_run(self) -> bool:
+        """Whether this folder is a run directory: it holds the ``MARKER``, or config.json (a run
+        directory written before the marker existed)."""
+        return self.marker.is_file() or self.config.is_file()
+
     def check_create(self, overwrite: bool) -> None:
         """What ``create`` refuses, checked without writing anything: a directory another process
-        holds locked (RunDirInUseError), a file where the directory goes, and an existing directory
-        that holds anything (its lock file aside), unless ``overwrite`` and it is a run directory
-        lifelong-evo wrote (it holds the ``MARKER``)."""
+        holds locked (RunDirInUseError), a file where the directory goes, a sweep's folder, a place
+        inside another run directory (whose ``--overwrite`` would delete this one), and an existing
+        directory that holds anything (its lock file aside), unless ``overwrite`` and it is a run
+        directory lifelong-evo wrote (it holds the ``MARKER``)."""
         self.check_free()
+        self.check_not_a_sweep()
+        outer = run_directory_around(self.path)
+        if outer is not None:
+            raise RunDirError(f"--out {self.path.parent} is inside run directory {outer}, whose --overwrite would "
+                              "delete this run too: choose another --out")
         self._check_contents(overwrite)
+
+    def check_not_a_sweep(self) -> None:
+        """RunDirError where this path is a sweep's folder (it holds ``SWEEP_FILE``), not a run directory."""
+        if (self.path / SWEEP_FILE).is_file() and not self.holds_a_run():
+            raise RunDirError(f"{self.path} is a sweep's folder (it holds {SWEEP_FILE}), not a run directory: its "
+                              "trials are the run directories inside it; choose another --name or --out")
 
     def check_free(self, **fix) -> None:
         """RunDirInUseError (with ``fix``, if given, as its advice) where another process holds this

@@ -183,6 +183,43 @@ def test_a_sweep_does_not_write_into_a_folder_of_someone_elses(work, capsys):
     assert "skipped" in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("verb", ["--together", "--dry-run"])
+@pytest.mark.parametrize("where", [["--name", "first"], ["--out", "runs/first", "--name", "grid"]],
+                         ids=["a-run-directory", "inside-one"])
+def test_a_sweep_does_not_write_into_a_run_directory(work, verb, where, capsys):
+    """``sweep --name A`` with runs/A a run wrote its files and trial folders into the run, which
+    the run's --overwrite would then delete: refused before anything is written, as is a sweep
+    under --out inside a run."""
+    before = snapshot(work.parent)
+    err = refused(["sweep", verb, *SIZE, *where], capsys)
+    if "--out" in where:
+        assert f"--out {work / 'runs/first'} is inside run directory {work / 'runs/first'}, whose --overwrite " \
+            "would delete the sweep too: choose another --out" in err, err
+    else:
+        assert f"{work / 'runs/first'} is a run directory, not a sweep's folder" in err, err
+        assert "choose another --name or --out" in err, err
+    assert snapshot(work.parent) == before
+
+
+@pytest.mark.parametrize("flags", [[], ["--overwrite"], ["--resume"]], ids=["new", "overwrite", "resume"])
+def test_a_run_does_not_write_into_a_sweeps_folder_or_a_run(work, flags, capsys):
+    """``--name S`` for a sweep's folder S was "already exists: pass --resume ... --overwrite",
+    then "not written by lifelong-evo: delete it yourself": it is a sweep's folder, named so. A run
+    under --out inside another run would go with that run's --overwrite."""
+    sweep = work / "runs" / "grid"
+    shutil.copytree(work / "runs" / "second", sweep / "trial")
+    (sweep / "sweep.json").write_text(json.dumps({"name": "grid", "grid": {}, "trials": []}))
+    before = snapshot(work.parent)
+    assert f"{Path('runs/grid')} is a sweep's folder (it holds sweep.json), not a run directory: its trials are " \
+        "the run directories inside it; choose another --name or --out" in refused([*RUN, "--name", "grid", *flags],
+                                                                                    capsys)
+    if "--resume" not in flags:
+        assert f"--out {Path('runs/first')} is inside run directory {work / 'runs/first'}, whose --overwrite " \
+            "would delete this run too: choose another --out" in \
+            refused([*RUN, "--out", "runs/first", "--name", "inner", *flags], capsys)
+    assert snapshot(work.parent) == before
+
+
 # ----------------------------------------------------------------------------------------- --overwrite
 
 def test_overwrite_refuses_a_folder_lifelong_evo_did_not_write(work, capsys):

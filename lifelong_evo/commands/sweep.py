@@ -72,12 +72,14 @@ from ..config import RunConfig
 from ..errors import UserError, interrupted_status, one_line
 from ..options import bounded, plain
 from ..rundir import (
+    SWEEP_FILE,
     RunDir,
     RunDirError,
     RunDirInUseError,
     check_out_folder,
     find_run_dirs,
     read_json,
+    run_directory_around,
     usable_cpus,
     write_json,
 )
@@ -261,22 +263,32 @@ def write_trials_csv(sweep_dir: Path, grid: Grid) -> None:
 
 
 def write_sweep_json(sweep_dir: Path, grid: Grid, ray_settings: dict[str, Any]) -> None:
-    write_json(sweep_dir / "sweep.json", {
+    write_json(sweep_dir / SWEEP_FILE, {
         "name": grid.name, "preset": grid.preset, "grid": grid.axes, "fixed": grid.fixed,
         "by_algo": {algo: {"grid": a, "fixed": f} for algo, (a, f) in grid.by_algo.items()}, "ray": ray_settings,
         "trials": [{"trial": t.name, "path": t.name, "values": t.values, "config": t.config.to_dict()}
                    for t in grid.trials]})
 
 
-SWEEP_FILES = ("sweep.json", "trials.csv", "ray.log", "comparison*", "model_specific_lambda*")
+SWEEP_FILES = (SWEEP_FILE, "trials.csv", "ray.log", "comparison*", "model_specific_lambda*")
 """What a sweep writes into its folder besides its trials' run directories."""
 
 
 def check_sweep_folder(sweep_dir: Path) -> None:
-    """RunDirError where ``sweep_dir`` is not a sweep's folder (no sweep.json a sweep wrote) yet
-    holds files a sweep would replace: nothing of a folder of someone else's is overwritten."""
+    """RunDirError where ``sweep_dir`` is a run directory or lies inside one (the run's
+    ``--overwrite`` would delete the sweep), or is not a sweep's folder (no sweep.json a sweep
+    wrote) yet holds files a sweep would replace: nothing of a folder of someone else's is
+    overwritten."""
+    if RunDir(sweep_dir).holds_a_run():
+        raise RunDirError(f"{sweep_dir} is a run directory, not a sweep's folder: the sweep's files and trials "
+                          "would go into the run, and its --overwrite would delete them: choose another --name or "
+                          "--out")
+    outer = run_directory_around(sweep_dir)
+    if outer is not None:
+        raise RunDirError(f"--out {sweep_dir.parent} is inside run directory {outer}, whose --overwrite would "
+                          "delete the sweep too: choose another --out")
     try:
-        if {"name", "grid", "trials"} <= set(read_json(sweep_dir / "sweep.json")):
+        if {"name", "grid", "trials"} <= set(read_json(sweep_dir / SWEEP_FILE)):
             return
     except (RunDirError, TypeError):  # missing, unreadable, or JSON of another shape
         pass
