@@ -26,6 +26,7 @@ import shutil
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable, Generator, Iterator, Sequence
 
 import torch
@@ -154,7 +155,7 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
         state = _resume(config, run_dir, optimizer, generator)
     else:
         state = LoopState()
-        source = _first_task_of(start_from, config) if start_from is not None else None
+        source = _first_task_of(start_from, config, run_dir) if start_from is not None else None
         lock = run_dir.create(overwrite)
         run_dir.write_config(config)
         if source is not None:
@@ -366,11 +367,20 @@ def _checkpoint_payload(config, optimizer, generator, state) -> dict[str, Any]:
                      "wall_time_s": state.wall_time_s, "machines": state.machines}}
 
 
-def _first_task_of(source: RunDir, config: RunConfig) -> dict[str, Any]:
-    """The checkpoint of ``source``'s first task end, once checked that a run of ``config`` may
-    start from it: the two differ in nothing that changes a number but lambda, which no optimiser
-    uses before its first reference (taken at that task end, whatever lambda is); ResumeError,
-    before anything is written, otherwise."""
+def check_start_from(config: RunConfig, run_dir: RunDir, source: RunDir) -> None:
+    """ResumeError, before anything is written, unless a run of ``config`` into ``run_dir`` may
+    take over ``source``'s first task: ``source`` is another run directory than ``run_dir``, by any
+    path, and not inside it (``--overwrite`` would empty it before it is read), keeps its first
+    task's end, and the two differ in nothing that changes a number but lambda, which no optimiser
+    uses before its first reference (taken at that task end, whatever lambda is)."""
+    if source.is_same_directory(run_dir):
+        raise ResumeError(f"--start-from {source.path} is the run directory this run writes ({run_dir.path}): "
+                          "a run cannot take over its own first task (--overwrite would delete it before it is "
+                          "read): give this run another --name, or --out")
+    if run_dir.path.resolve() in source.path.resolve().parents:
+        raise ResumeError(f"--start-from {source.path} lies inside the run directory this run writes "
+                          f"({run_dir.path}), which --overwrite would empty before it is read: give this run "
+                          "another --name, or --out")
     different = source.first_task_differences(config.to_dict())
     if different:
         raise ResumeError(f"--start-from {source.path}: that run differs from this one in more than lambda, "
@@ -382,7 +392,13 @@ def _first_task_of(source: RunDir, config: RunConfig) -> dict[str, Any]:
         raise ResumeError(f"--start-from {source.path}: it keeps no checkpoint of its first task's end ({path} "
                           "is missing: it has not reached it, or was made before runs kept it): start this run "
                           "without --start-from")
-    return checkpoint.load(path)
+
+
+def _first_task_of(source: RunDir, config: RunConfig, run_dir: RunDir) -> dict[str, Any]:
+    """The checkpoint of ``source``'s first task end, once checked (``check_start_from``) that a
+    run of ``config`` into ``run_dir`` may start from it."""
+    check_start_from(config, run_dir, source)
+    return checkpoint.load(source.first_task_end)
 
 
 def _take_first_task(config: RunConfig, run_dir: RunDir, source: RunDir, payload: dict[str, Any], optimizer,
@@ -427,11 +443,38 @@ def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopSta
     try:
         payload = checkpoint.load(path)
     except checkpoint.CorruptCheckpointError as error:
-        advice = (f"delete it to resume from {found[-2].name}, the checkpoint before it" if len(found) > 1
-                  else "no earlier checkpoint is left: delete it to resume from generation 0")
-        raise checkpoint.CorruptCheckpointError(f"{error}; {advice}") from None
+        raise checkpoint.CorruptCheckpointError(f"{error}; {_damaged_checkpoint_advice(found)}") from None
     if "pickle" in (payload.get("optimizer") or {}):
         raise checkpoint.older_version_error(path)
     if RunConfig.outcome_settings(payload.get("config") or {}) != RunConfig.outcome_settings(config.to_dict()):
         raise ResumeError(f"checkpoint {path} belongs to another configuration: delete it or start a new run")
     return _load_state(payload, optimizer, generator)
+
+
+def _damaged_checkpoint_advice(found: list[Path]) -> str:
+    """What to do when the newest of the checkpoints ``found`` (oldest first) is damaged: delete
+    it, and any damaged one before it, to resume from the newest that can be read; with none
+    readable, delete them all to resume from generation 0 (first-task-end.pt is no checkpoint
+    ``--resume`` reads, and is kept for the runs that start from it)."""
+    *earlier, newest = found
+    damaged = [newest]
+    for candidate in reversed(earlier):
+        try:
+            checkpoint.load(candidate)
+        except checkpoint.CheckpointError:
+            damaged.insert(0, candidate)
+            continue
+        if len(damaged) == 1:
+            return f"delete it to resume from {candidate.name}, the checkpoint before it"
+        return (f"{_names(damaged[:-1])} before it cannot be read either: delete {_names(damaged)} to resume from "
+                f"{candidate.name}")
+    if len(damaged) == 1:
+        return "no earlier checkpoint is left: delete it to resume from generation 0"
+    return (f"{_names(damaged[:-1])} before it cannot be read either, so no checkpoint is left: delete "
+            f"{_names(damaged)}, and --resume starts again from generation 0")
+
+
+def _names(paths: list[Path]) -> str:
+    """``a.pt``, ``a.pt and b.pt``, ``a.pt, b.pt and c.pt``."""
+    names = [path.name for path in paths]
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"

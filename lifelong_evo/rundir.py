@@ -60,6 +60,9 @@ MARKER = ".lifelong-evo-run"
 a directory that holds it."""
 LOCK = ".lock"
 """The file in every run directory that the process writing the run holds locked (``RunLock``)."""
+SWEEP_FILE = "sweep.json"
+"""The file a sweep writes first into its folder (``commands/sweep.py``): a folder with it is a
+sweep's, whose run directories are its trials inside it, and never a run directory itself."""
 
 
 class ResumeError(RunDirError):
@@ -257,6 +260,12 @@ def lock_holder(lock_file: Path) -> str:
         return "another process"
 
 
+def run_directory_around(path: Path) -> Path | None:
+    """The run directory (it holds the ``MARKER``) that ``path`` lies inside, if any: a run's
+    ``--overwrite`` deletes everything in it."""
+    return next((folder for folder in Path(path).resolve().parents if (folder / MARKER).is_file()), None)
+
+
 class RunDir:
     """The files of one run directory, and the rules for making, writing and reading them."""
 
@@ -278,6 +287,14 @@ class RunDir:
         folder name (``check_run_name``)."""
         return cls(check_out_folder(out) / check_run_name(name, what, **fix))
 
+    def is_same_directory(self, other: RunDir) -> bool:
+        """Whether ``other`` names this directory, by whatever path: relative or absolute, with a
+        trailing slash or ``..``, through a symbolic link (the file system decides where both exist)."""
+        try:
+            return os.path.samefile(self.path, other.path)
+        except OSError:  # one of them does not exist (yet): where they would be
+            return self.path.resolve() == other.path.resolve()
+
     def lock(self) -> RunLock:
         """This existing run directory's lock, taken (RunDirInUseError where another process holds
         it): one writer per run directory. ``create`` takes it for a new run."""
@@ -297,13 +314,30 @@ class RunDir:
             os.close(fd)
         return None
 
+    def holds_a_run(self) -> bool:
+        """Whether this folder is a run directory: it holds the ``MARKER``, or config.json (a run
+        directory written before the marker existed)."""
+        return self.marker.is_file() or self.config.is_file()
+
     def check_create(self, overwrite: bool) -> None:
         """What ``create`` refuses, checked without writing anything: a directory another process
-        holds locked (RunDirInUseError), a file where the directory goes, and an existing directory
-        that holds anything (its lock file aside), unless ``overwrite`` and it is a run directory
-        lifelong-evo wrote (it holds the ``MARKER``)."""
+        holds locked (RunDirInUseError), a file where the directory goes, a sweep's folder, a place
+        inside another run directory (whose ``--overwrite`` would delete this one), and an existing
+        directory that holds anything (its lock file aside), unless ``overwrite`` and it is a run
+        directory lifelong-evo wrote (it holds the ``MARKER``)."""
         self.check_free()
+        self.check_not_a_sweep()
+        outer = run_directory_around(self.path)
+        if outer is not None:
+            raise RunDirError(f"--out {self.path.parent} is inside run directory {outer}, whose --overwrite would "
+                              "delete this run too: choose another --out")
         self._check_contents(overwrite)
+
+    def check_not_a_sweep(self) -> None:
+        """RunDirError where this path is a sweep's folder (it holds ``SWEEP_FILE``), not a run directory."""
+        if (self.path / SWEEP_FILE).is_file() and not self.holds_a_run():
+            raise RunDirError(f"{self.path} is a sweep's folder (it holds {SWEEP_FILE}), not a run directory: its "
+                              "trials are the run directories inside it; choose another --name or --out")
 
     def check_free(self, **fix) -> None:
         """RunDirInUseError (with ``fix``, if given, as its advice) where another process holds this
@@ -393,16 +427,21 @@ class RunDir:
         (``RunConfig.to_dict()``, a sweep's trial). The statement is laid over the stored settings
         and validated (ConfigError for a bad value); then every setting but the output settings is
         compared, the environment and the optimiser's options resolved as config.json says the run
-        resolved them, so a default stated in one and left out in the other is one setting."""
+        resolved them, so a default stated in one and left out in the other is one setting. Where
+        the optimiser differs, its options are not compared: they are another optimiser's, which
+        nobody stated, and ``--algo`` alone is the difference."""
         stored = self.read_config()
         written = read_json(self.config)
         algo = stated.get("algo", stored.algo)
-        keep_options = stored.algo_options if algo == stored.algo else {}  # another optimiser's options mean nothing
+        same_algo = algo == stored.algo
+        keep_options = stored.algo_options if same_algo else {}  # another optimiser's options mean nothing
         given = replace(stored, **{k: v for k, v in stated.items() if k not in ("env", "algo_options")},
                         env={**stored.env, **stated.get("env", {})},
                         algo_options={**keep_options, **stated.get("algo_options", {})}).validate(machine=False)
         differences = []
         for name, value in RunConfig.outcome_settings(given.to_dict()).items():
+            if name == "algo_options" and not same_algo:
+                continue
             if name in ("env", "algo_options"):
                 flag, mine = ("--env", given.env_config().to_dict()) if name == "env" else \
                     ("--option", given.algo_options_resolved())

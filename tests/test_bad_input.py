@@ -283,6 +283,30 @@ def test_the_sweeps_own_numbers_are_bounded_too(argv, message, tmp_path, capsys)
     assert err.startswith(f"error: {message}") and err.count("\n") == 1, err
 
 
+@pytest.mark.parametrize("device", [[], ["--device", "cpu"]], ids=["no-device", "device-cpu"])
+def test_gpus_per_trial_without_cuda_says_to_drop_it(device, tmp_path, monkeypatch, capsys):
+    """``--gpus-per-trial 1`` without CUDA said "use --device cpu", which then said "drop --device or
+    set it to cuda": neither is the fix. Each names --gpus-per-trial, and without it the sweep runs."""
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    sweep = ["sweep", "--preset", "smoke", "--out", str(tmp_path / "sweeps"), "--dry-run", *device]
+    assert main([*sweep, "--gpus-per-trial", "1"]) == 2
+    captured = capsys.readouterr()
+    assert captured.err == ("error: --gpus-per-trial 1 runs the trials on CUDA, and this machine has no CUDA device "
+                            "that torch can use: drop --gpus-per-trial to run them on the CPU, or give --address of a "
+                            "cluster with GPUs\n") and captured.out == "", captured
+    assert not (tmp_path / "sweeps").exists()
+    assert main(sweep) == 0
+
+
+def test_gpus_per_trial_with_a_cpu_device_names_both_fixes(tmp_path, capsys):
+    """On a cluster (or a CUDA machine), --device cpu and --gpus-per-trial contradict each other."""
+    assert main(["sweep", "--preset", "smoke", "--out", str(tmp_path / "sweeps"), "--dry-run", "--device", "cpu",
+                 "--gpus-per-trial", "0.5", "--address", "head:6379"]) == 2
+    assert capsys.readouterr().err == ("error: --gpus-per-trial 0.5 runs the trials on CUDA, but --device is cpu: "
+                                       "drop --gpus-per-trial to run them on cpu, or drop --device\n")
+    assert not (tmp_path / "sweeps").exists()
+
+
 def test_an_earlier_run_is_left_untouched(tmp_path, capsys):
     earlier = tmp_path / "runs" / "earlier"
     earlier.mkdir(parents=True)

@@ -22,6 +22,7 @@ import torch
 from algorithms import REGISTRY
 from lifelong_evo.commands.cli import main
 from lifelong_evo.metrics import Retention, retention, summarise
+from tests.test_nothing_lost import snapshot
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -296,6 +297,37 @@ def test_truncated_last_checkpoint_then_none(smoke_runs, tmp_path, capsys):
     _same_numbers(run, smoke_runs / "neat")
 
 
+def test_every_checkpoint_damaged_says_none_is_left(smoke_runs, tmp_path, capsys):
+    """Both checkpoints damaged: the advice named the one before the newest, damaged too. It says
+    none can be read, names both to delete (not first-task-end.pt, which --resume does not read
+    and the runs that start from this one need) and what --resume then does, which it does."""
+    run = _copy(smoke_runs, tmp_path)
+    earlier, latest = sorted(run.glob("checkpoints/generation-*.pt"))
+    readable = run / "checkpoints" / "generation-000001.pt"  # a readable one before both (a run keeps two)
+    shutil.copyfile(earlier, readable)
+    earlier.write_bytes(earlier.read_bytes()[:-1000])
+    data = bytearray(latest.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    latest.write_bytes(bytes(data))
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 2
+    assert capsys.readouterr().err.endswith(
+        f"; {earlier.name} before it cannot be read either: delete {earlier.name} and {latest.name} to resume from "
+        f"{readable.name}\n")
+    readable.unlink()
+    before = snapshot(run)
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 2
+    assert capsys.readouterr().err == (
+        f"error: checkpoint {latest} is corrupt or truncated (its checksum does not match); {earlier.name} before "
+        f"it cannot be read either, so no checkpoint is left: delete {earlier.name} and {latest.name}, and --resume "
+        "starts again from generation 0\n")
+    assert snapshot(run) == before
+    earlier.unlink()
+    latest.unlink()
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 0
+    assert capsys.readouterr().err == f"note: no checkpoint in {run / 'checkpoints'}: resuming from generation 0\n"
+    _same_numbers(run, smoke_runs / "neat")
+
+
 @pytest.mark.parametrize("signed", [True, False])
 def test_checkpoint_of_the_older_signed_format_is_refused(smoke_runs, tmp_path, capsys, signed):
     """Checkpoints of the version that pickled NEAT's state behind an HMAC tag: one line that says
@@ -456,6 +488,19 @@ def test_resume_takes_the_original_command(smoke_runs, tmp_path, capsys):
     assert "--population 50 (stored: 20)" in err and "--env duration=100 (stored: 60)" in err
     assert main([*original, "--name", "neat", "--resume", "--option", "genetics=2.0"]) == 2
     assert "--option genetics='2.0' (stored: '0.92')" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("run, other", [("openai-es", "neat"), ("neat", "openai-es")])
+def test_resume_with_another_algo_names_only_the_algo(smoke_runs, run, other, capsys):
+    """``--resume --algo neat`` on an OpenAI-ES run listed the eight options of the two optimisers
+    (``--option sigma=None (stored: 0.1)``, ...) that nobody typed, and said to drop them."""
+    before = snapshot(smoke_runs)
+    assert main(["--resume", "--out", str(smoke_runs), "--name", run, "--algo", other, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"error: {smoke_runs / run} was run with other settings than these: --algo {other!r} (stored: "
+                   f"{run!r}): continue it with its stored settings (drop those flags or give the stored values), "
+                   "or start a new run (another --name, or --overwrite to replace it)\n")
+    assert snapshot(smoke_runs) == before
 
 
 def test_ctrl_c_prints_the_command_that_resumes(tmp_path):

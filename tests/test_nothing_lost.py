@@ -183,6 +183,43 @@ def test_a_sweep_does_not_write_into_a_folder_of_someone_elses(work, capsys):
     assert "skipped" in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("verb", ["--together", "--dry-run"])
+@pytest.mark.parametrize("where", [["--name", "first"], ["--out", "runs/first", "--name", "grid"]],
+                         ids=["a-run-directory", "inside-one"])
+def test_a_sweep_does_not_write_into_a_run_directory(work, verb, where, capsys):
+    """``sweep --name A`` with runs/A a run wrote its files and trial folders into the run, which
+    the run's --overwrite would then delete: refused before anything is written, as is a sweep
+    under --out inside a run."""
+    before = snapshot(work.parent)
+    err = refused(["sweep", verb, *SIZE, *where], capsys)
+    if "--out" in where:
+        assert f"--out {work / 'runs/first'} is inside run directory {work / 'runs/first'}, whose --overwrite " \
+            "would delete the sweep too: choose another --out" in err, err
+    else:
+        assert f"{work / 'runs/first'} is a run directory, not a sweep's folder" in err, err
+        assert "choose another --name or --out" in err, err
+    assert snapshot(work.parent) == before
+
+
+@pytest.mark.parametrize("flags", [[], ["--overwrite"], ["--resume"]], ids=["new", "overwrite", "resume"])
+def test_a_run_does_not_write_into_a_sweeps_folder_or_a_run(work, flags, capsys):
+    """``--name S`` for a sweep's folder S was "already exists: pass --resume ... --overwrite",
+    then "not written by lifelong-evo: delete it yourself": it is a sweep's folder, named so. A run
+    under --out inside another run would go with that run's --overwrite."""
+    sweep = work / "runs" / "grid"
+    shutil.copytree(work / "runs" / "second", sweep / "trial")
+    (sweep / "sweep.json").write_text(json.dumps({"name": "grid", "grid": {}, "trials": []}))
+    before = snapshot(work.parent)
+    assert f"{Path('runs/grid')} is a sweep's folder (it holds sweep.json), not a run directory: its trials are " \
+        "the run directories inside it; choose another --name or --out" in refused([*RUN, "--name", "grid", *flags],
+                                                                                    capsys)
+    if "--resume" not in flags:
+        assert f"--out {Path('runs/first')} is inside run directory {work / 'runs/first'}, whose --overwrite " \
+            "would delete this run too: choose another --out" in \
+            refused([*RUN, "--out", "runs/first", "--name", "inner", *flags], capsys)
+    assert snapshot(work.parent) == before
+
+
 # ----------------------------------------------------------------------------------------- --overwrite
 
 def test_overwrite_refuses_a_folder_lifelong_evo_did_not_write(work, capsys):
@@ -237,6 +274,52 @@ def test_resume_and_overwrite_together_are_refused(work, capsys):
     assert "--resume continues a run directory and --overwrite deletes it" in \
         refused([*RUN, "--name", "first", "--resume", "--overwrite"], capsys)
     assert snapshot(work.parent) == before
+
+
+SAME_RUN = {"as-named": "runs/first", "dotted": "./runs/first/", "through-parent": "runs/../runs/first",
+            "absolute": None, "link": "link-to-first"}
+"""Spellings of runs/first for --start-from (None: its absolute path)."""
+
+
+@pytest.mark.parametrize("out", ["runs", "absolute"])
+@pytest.mark.parametrize("source", SAME_RUN)
+def test_overwrite_never_deletes_the_run_it_starts_from(work, source, out, capsys):
+    """``--start-from runs/A --name A --overwrite`` emptied A, then crashed reading A's controllers
+    (KeyError, exit 1): every file of the run was gone. Refused, however the two paths are spelt."""
+    (work / "link-to-first").symlink_to(work / "runs" / "first")
+    given = SAME_RUN[source] or str(work / "runs" / "first")
+    before = snapshot(work.parent)
+    out_folder = str(work / "runs") if out == "absolute" else "runs"
+    for overwrite in (["--overwrite"], []):
+        err = refused([*RUN, "--reg", "1", "--start-from", given, "--out", out_folder, "--name", "first", *overwrite],
+                      capsys)
+        assert f"--start-from {Path(given)} is the run directory this run writes" in err, err
+        assert "cannot take over its own first task" in err and "give this run another --name" in err, err
+        assert snapshot(work.parent) == before
+
+
+def test_overwrite_never_deletes_a_run_inside_it_that_it_starts_from(work, capsys):
+    """A run copied into another one's directory goes with that run's --overwrite."""
+    shutil.copytree(work / "runs" / "second", work / "runs" / "first" / "inner")
+    before = snapshot(work.parent)
+    err = refused([*RUN, "--reg", "1", "--start-from", "runs/first/inner", "--name", "first", "--overwrite"], capsys)
+    assert f"--start-from {Path('runs/first/inner')} lies inside the run directory this run writes " \
+        f"({Path('runs/first')}), which --overwrite would empty before it is read: give this run another --name" in err
+    assert snapshot(work.parent) == before
+
+
+def test_a_sweep_trial_never_starts_from_its_own_directory(work, capsys):
+    """A trial reached through a link among the first-task sources of ``--share-first-task``
+    (``--first-task-from``) is not a source of itself: it runs its first task, its own run intact
+    until its ``--overwrite`` deletes it as asked."""
+    trial = work / "runs" / "grid" / "first"
+    trial.parent.mkdir()
+    shutil.move(work / "runs" / "first", trial)
+    (work / "link-to-trial").symlink_to(trial)
+    values = {**RunDir(trial).read_config().to_dict(), "reg": 1.0}
+    result = run_trial(values, str(trial), overwrite=True, first_task_sources=[str(work / "link-to-trial")])
+    assert result["status"] == "done" and result["first_task_from"] == "", result
+    assert json.loads((trial / "config.json").read_text())["reg"] == 1.0
 
 
 # --------------------------------------------------------------------------------- one writer per run

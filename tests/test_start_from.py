@@ -9,6 +9,7 @@ import pytest
 
 from algorithms import REGISTRY
 from lifelong_evo.commands.cli import main
+from tests.test_nothing_lost import snapshot
 
 COMMON = ["--preset", "smoke", "--schedule", "red:3,green:3,red:2", "--env", "duration=100", "--checkpoint-every", "2",
           "--no-record", "--quiet"]
@@ -82,6 +83,20 @@ def test_start_from_refuses_a_run_that_differs_in_more_than_lambda(tmp_path, cap
                  str(tmp_path / "source")]) == 2
     assert "keeps no checkpoint of its first task" in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
+
+
+def test_start_from_a_run_of_another_algo_names_only_the_algo(tmp_path, capsys):
+    """The refusal listed the options of both optimisers, which nobody typed, beside --algo."""
+    assert main(["--algo", "neat", *COMMON, "--out", str(tmp_path), "--name", "source"]) == 0
+    capsys.readouterr()
+    before = snapshot(tmp_path)
+    assert main(["--algo", "openai-es", "--reg", "2", *COMMON, "--out", str(tmp_path), "--name", "new",
+                 "--start-from", str(tmp_path / "source")]) == 2
+    captured = capsys.readouterr()
+    assert captured.err == (f"error: --start-from {tmp_path / 'source'}: that run differs from this one in more than "
+                            "lambda, rehearsal and from scratch (--algo 'openai-es' (stored: 'neat')), so its first "
+                            "task is not this run's: start this run without --start-from\n")
+    assert captured.out == "" and snapshot(tmp_path) == before
 
 
 @pytest.mark.parametrize("algo", ["neat", "sep-cmaes"])

@@ -444,6 +444,36 @@ def test_share_first_task_runs_each_pair_in_turn_with_the_numbers_of_separate_ru
     assert _trials(tmp_path / "shared") == trials
 
 
+@pytest.mark.parametrize("order", ["sources-last", "sources-first"])
+def test_an_overwriting_sweep_never_starts_a_trial_from_a_first_task_it_deletes(tmp_path, monkeypatch, order, capsys):
+    """``--overwrite --share-first-task``: a lambda > 0 trial that starts before its restarted
+    lambda = 0 sibling has deleted its old files (workers at once; here Ray is played in this
+    process, in the order given) took over that old first task, which the sibling then deleted
+    while it was read. It runs its first task itself; once the sibling has written its first
+    task again, that is taken over."""
+    from lifelong_evo.commands import ray_cluster
+
+    def in_turn(jobs, function, *, on_result, **settings):
+        order_ = range(len(jobs)) if order == "sources-first" else reversed(range(len(jobs)))
+        for index in order_:
+            on_result(index, function(*jobs[index].args), "")
+
+    grid = ["sweep", "--algo", "neat", "--reg", "0,2", "--schedule", "red:2,green:2", *SMOKE, "--eval-threads", "1",
+            "--out", str(tmp_path), "--name", "shared"]
+    assert main([*grid, "--together"]) == 0
+    first = {name: (tmp_path / "shared" / name / "metrics.csv").read_bytes() for name in ("reg0", "reg2")}
+    old_first_task = (tmp_path / "shared/reg0/checkpoints/first-task-end.pt").stat().st_ino
+    monkeypatch.setattr(ray_cluster, "run_jobs", in_turn)
+    assert main([*grid, "--overwrite", "--share-first-task"]) == 0
+    trials = _trials(tmp_path / "shared")
+    assert trials["reg0"]["status"] == trials["reg2"]["status"] == "done", trials
+    source = str(tmp_path.resolve() / "shared" / "reg0") if order == "sources-first" else ""
+    assert trials["reg2"]["first_task_from"] == source, trials
+    assert (tmp_path / "shared/reg0/checkpoints/first-task-end.pt").stat().st_ino != old_first_task
+    for name, metrics in first.items():
+        assert (tmp_path / "shared" / name / "metrics.csv").read_bytes() == metrics, name
+
+
 def test_first_task_from_needs_share_first_task(tmp_path, capsys):
     assert main(["sweep", "--algo", "neat", *SMOKE, "--out", str(tmp_path), "--first-task-from", str(tmp_path)]) == 2
     assert "add --share-first-task" in capsys.readouterr().err

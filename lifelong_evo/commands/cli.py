@@ -79,9 +79,12 @@ def _run(args: argparse.Namespace) -> int:
     run_dir = RunDir.inside(args.out, args.name) if args.name is not None else RunDir.inside(
         args.out, config.default_name(), "the run name from --algo, --schedule, --reg and --seed", fix="give --name")
     if args.resume:
+        run_dir.check_not_a_sweep()
         config = run_dir.continuation(stated)
         run_dir.check_free()  # the loop takes the lock
     else:
+        if args.start_from:  # first: with --overwrite, the source may be the very directory it would empty
+            loop.check_start_from(config, run_dir, RunDir(args.start_from))
         run_dir.check_create(args.overwrite)  # the loop checks again, locked
     if args.memory_check:
         memory.check([config])

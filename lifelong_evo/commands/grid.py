@@ -233,9 +233,17 @@ def build_grid(args: argparse.Namespace) -> Grid:
     if args.gpus_per_trial < 0:
         raise UserError(f"--gpus-per-trial must be >= 0, got {args.gpus_per_trial}")
     if args.gpus_per_trial > 0:
+        gpus = f"--gpus-per-trial {args.gpus_per_trial:g}"
+        # a cluster's nodes, not this machine, must have CUDA; here, --device cannot give it
+        if args.address is None and not _cuda_available():
+            raise UserError(f"{gpus} runs the trials on CUDA, and this machine has no CUDA device that torch can "
+                            "use: drop --gpus-per-trial to run them on the CPU, or give --address of a cluster "
+                            "with GPUs")
         devices = axes.get("device", [fixed.get("device", "cuda")])
-        if any(not str(d).startswith("cuda") for d in devices):
-            raise UserError("--gpus-per-trial runs trials on cuda: drop --device or set it to cuda")
+        other = next((d for d in devices if not str(d).startswith("cuda")), None)
+        if other is not None:
+            raise UserError(f"{gpus} runs the trials on CUDA, but --device is {other}: drop --gpus-per-trial to "
+                            f"run them on {other}, or drop --device")
         if "device" not in axes:
             fixed["device"] = "cuda"
     algos = axes.get("algo", [fixed.get("algo", RunConfig().algo)])
@@ -273,6 +281,12 @@ def build_grid(args: argparse.Namespace) -> Grid:
         check_run_name(trial.name, "the trial name", fix="spell the values it is made of (axis values, --algo) "
                                                           "differently")
     return grid
+
+
+def _cuda_available() -> bool:
+    import torch  # here, not above: a sweep that reserves no GPU asks nothing of torch here
+
+    return torch.cuda.is_available()
 
 
 def _resolve(preset: str, values: dict[str, Any], axis_values: dict[str, Any], machine: bool) -> RunConfig:

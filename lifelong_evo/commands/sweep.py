@@ -72,12 +72,14 @@ from ..config import RunConfig
 from ..errors import UserError, interrupted_status, one_line
 from ..options import bounded, plain
 from ..rundir import (
+    SWEEP_FILE,
     RunDir,
     RunDirError,
     RunDirInUseError,
     check_out_folder,
     find_run_dirs,
     read_json,
+    run_directory_around,
     usable_cpus,
     write_json,
 )
@@ -141,13 +143,34 @@ def trial_run(config_values: dict[str, Any], path: str, overwrite: bool,
                          start_from=None if resume else start_from)
 
 
-def first_task_source(config: RunConfig, candidates: Sequence[str]) -> RunDir | None:
+FileIdentity = tuple[int, int]
+"""A file's inode and modification time (ns): ``checkpoint.save`` replaces a file by a new one
+(a rename), so a rewritten first-task-end.pt has another identity than the one it replaced."""
+
+
+def file_identity(path: Path) -> FileIdentity | None:
+    """``path``'s ``FileIdentity``, or None where there is no such file."""
+    try:
+        found = path.stat()
+    except OSError:
+        return None
+    return found.st_ino, found.st_mtime_ns
+
+
+def first_task_source(config: RunConfig, candidates: Sequence[str],
+                      outdated: dict[str, FileIdentity] | None = None) -> RunDir | None:
     """The first of the run directories ``candidates`` whose first task a run of ``config`` may
     take over (``run --start-from``): it has reached that task's end and differs only in settings
     that act after it (``RunDir.first_task_differences``).
-    Looked up when the trial starts, so a source that ended its first task meanwhile counts."""
+    Looked up when the trial starts, so a source that ended its first task meanwhile counts.
+    ``outdated``: candidates that this sweep's ``--overwrite`` restarts, with the identity their
+    first-task-end.pt had before the sweep: such a candidate counts only once its own trial has
+    written that file again (before, its trial may delete it while it is read, and it is what
+    the overwrite replaces)."""
+    outdated = outdated or {}
     for candidate in map(RunDir, candidates):
-        if candidate.first_task_end.is_file():
+        identity = file_identity(candidate.first_task_end)
+        if identity is not None and identity != outdated.get(str(candidate.path)):
             try:
                 if not candidate.first_task_differences(config.to_dict()):
                     return candidate
@@ -169,18 +192,21 @@ def first_task_order(trials: list[Trial]) -> list[Trial]:
 
 
 def run_trial(config_values: dict[str, Any], path: str, overwrite: bool, memory_check: bool = True,
-              first_task_sources: Sequence[str] = ()) -> dict[str, Any]:
+              first_task_sources: Sequence[str] = (),
+              outdated_sources: dict[str, FileIdentity] | None = None) -> dict[str, Any]:
     """One trial alone; never raises: an error comes back as ``{"status": "failed", "error": one line}``.
     ``memory_check``: first check that the trial fits in the memory of the node it runs on;
     ``first_task_sources``: run directories a new trial may take its first task from
-    (``first_task_source``); the result names the one it took, if any."""
+    (``first_task_source``, with ``outdated_sources``); the result names the one it took, if any."""
     started = time.monotonic()
     try:
         if memory_check:
             memory.check([RunConfig.from_dict(config_values)], what=f"trial {Path(path).name}")
-        new = overwrite or not RunDir(path).config.exists()
-        source = first_task_source(RunConfig.from_dict(config_values),
-                                   [s for s in first_task_sources if s != path]) if new else None
+        run_dir = RunDir(path)
+        new = overwrite or not run_dir.config.exists()
+        # never itself, by any path (--first-task-from may reach it through a link): it deletes what it would read
+        others = [s for s in first_task_sources if not RunDir(s).is_same_directory(run_dir)]
+        source = first_task_source(RunConfig.from_dict(config_values), others, outdated_sources) if new else None
         summary = loop.run_alone(trial_run(config_values, path, overwrite, source))
         return {"status": "done", "error": "", "wall_time_s": summary["wall_time_s"],
                 "first_task_from": "" if source is None else str(source.path)}
@@ -237,22 +263,32 @@ def write_trials_csv(sweep_dir: Path, grid: Grid) -> None:
 
 
 def write_sweep_json(sweep_dir: Path, grid: Grid, ray_settings: dict[str, Any]) -> None:
-    write_json(sweep_dir / "sweep.json", {
+    write_json(sweep_dir / SWEEP_FILE, {
         "name": grid.name, "preset": grid.preset, "grid": grid.axes, "fixed": grid.fixed,
         "by_algo": {algo: {"grid": a, "fixed": f} for algo, (a, f) in grid.by_algo.items()}, "ray": ray_settings,
         "trials": [{"trial": t.name, "path": t.name, "values": t.values, "config": t.config.to_dict()}
                    for t in grid.trials]})
 
 
-SWEEP_FILES = ("sweep.json", "trials.csv", "ray.log", "comparison*", "model_specific_lambda*")
+SWEEP_FILES = (SWEEP_FILE, "trials.csv", "ray.log", "comparison*", "model_specific_lambda*")
 """What a sweep writes into its folder besides its trials' run directories."""
 
 
 def check_sweep_folder(sweep_dir: Path) -> None:
-    """RunDirError where ``sweep_dir`` is not a sweep's folder (no sweep.json a sweep wrote) yet
-    holds files a sweep would replace: nothing of a folder of someone else's is overwritten."""
+    """RunDirError where ``sweep_dir`` is a run directory or lies inside one (the run's
+    ``--overwrite`` would delete the sweep), or is not a sweep's folder (no sweep.json a sweep
+    wrote) yet holds files a sweep would replace: nothing of a folder of someone else's is
+    overwritten."""
+    if RunDir(sweep_dir).holds_a_run():
+        raise RunDirError(f"{sweep_dir} is a run directory, not a sweep's folder: the sweep's files and trials "
+                          "would go into the run, and its --overwrite would delete them: choose another --name or "
+                          "--out")
+    outer = run_directory_around(sweep_dir)
+    if outer is not None:
+        raise RunDirError(f"--out {sweep_dir.parent} is inside run directory {outer}, whose --overwrite would "
+                          "delete the sweep too: choose another --out")
     try:
-        if {"name", "grid", "trials"} <= set(read_json(sweep_dir / "sweep.json")):
+        if {"name", "grid", "trials"} <= set(read_json(sweep_dir / SWEEP_FILE)):
             return
     except (RunDirError, TypeError):  # missing, unreadable, or JSON of another shape
         pass
@@ -334,6 +370,7 @@ def main(args: argparse.Namespace) -> int:
     if args.first_task_from and not args.share_first_task:
         raise UserError("--first-task-from names runs to share first tasks with: add --share-first-task")
     sources: list[str] = []
+    outdated: dict[str, FileIdentity] = {}
     if args.share_first_task:
         if args.together:
             raise UserError("--share-first-task starts a trial from a run that has ended its first task, but "
@@ -342,6 +379,10 @@ def main(args: argparse.Namespace) -> int:
         sources = [str(sweep_dir / t.name) for t in first_task_order(grid.trials)]
         for folder in args.first_task_from:
             sources += [str(path.resolve()) for path in find_run_dirs([folder])]
+        if args.overwrite:  # a restarted trial's first task, as it was before this sweep, is no source
+            restarted = {str(sweep_dir / t.name) for t in to_run}
+            outdated = {source: identity for source in sources if source in restarted
+                        and (identity := file_identity(RunDir(source).first_task_end)) is not None}
     if args.dry_run:
         for trial in to_run:
             _print(f"would run {trial.name}")
@@ -373,7 +414,7 @@ def main(args: argparse.Namespace) -> int:
         if to_run and args.together:
             _run_together(grid, to_run, sweep_dir, args.overwrite)
         elif to_run:
-            _run_trials(args, grid, to_run, sweep_dir, address, sources)
+            _run_trials(args, grid, to_run, sweep_dir, address, sources, outdated)
     except KeyboardInterrupt as stop:  # Ctrl-C or SIGTERM: running trials were cancelled; their checkpoints stay
         interruption = stop
     write_trials_csv(sweep_dir, grid)
@@ -458,7 +499,8 @@ def _run_together(grid: Grid, to_run: list[Trial], sweep_dir: Path, overwrite: b
 
 
 def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep_dir: Path,
-                address: str | None, first_task_sources: list[str]) -> None:
+                address: str | None, first_task_sources: list[str],
+                outdated_sources: dict[str, FileIdentity]) -> None:
     """Run ``to_run`` on Ray (``ray_cluster.run_jobs``), in that order, recording each result as it
     comes; on Ctrl-C or SIGTERM the running trials are cancelled and KeyboardInterrupt raised."""
     finished = len(grid.trials) - len(to_run)
@@ -485,7 +527,7 @@ def _run_trials(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep
 
     jobs = [ray_cluster.Job(trial.name, _cpus(trial.config),
                             (trial.config.to_dict(), str(sweep_dir / trial.name), args.overwrite, args.memory_check,
-                             first_task_sources)) for trial in to_run]
+                             first_task_sources, outdated_sources)) for trial in to_run]
     ray_cluster.run_jobs(jobs, run_trial, address=address, given_address=args.address, workers=args.workers,
                          gpus_per_job=args.gpus_per_trial, retries=args.retries, log=sweep_dir / ray_cluster.RAY_LOG,
                          on_result=record, on_wait=waiting, wait_every_s=STATUS_EVERY_S)
