@@ -19,7 +19,8 @@ What is used instead, each from IEEE's correctly rounded operations only (``+ - 
 - ``exact_bmm``: a batched matrix product on a fixed-point grid (inputs in [-1, 1] on multiples of
   ``2**-INPUT_BITS``, weights in ``[-WEIGHT_LIMIT, WEIGHT_LIMIT]`` on multiples of
   ``2**-WEIGHT_BITS``), summed in float64, where every product and every partial sum of up to
-  ``MAX_TERMS`` terms is an exact integer: any summation order gives the same sum.
+  ``CHUNK_TERMS`` terms is an exact integer: any summation order gives the same sum (longer sums
+  add their chunks in a fixed order).
 
 The module is shared by the arena and the built-in controllers (``algorithms``), and knows
 nothing of either.
@@ -33,12 +34,13 @@ import torch
 
 INPUT_BITS = 20
 """Inputs of ``exact_bmm`` lie on multiples of 2**-20 (about 1e-6) in [-1, 1]."""
-WEIGHT_BITS = 16
-"""Weights of ``exact_bmm`` lie on multiples of 2**-16 (about 1.5e-5)."""
+WEIGHT_BITS = 20
+"""Weights of ``exact_bmm`` lie on multiples of 2**-20."""
 WEIGHT_LIMIT = 128.0
-"""Weights of ``exact_bmm`` are clipped to [-128, 128]: 2**7 * 2**16 * 2**20 = 2**43 bounds a product."""
-MAX_TERMS = 2 ** 10
-"""Terms per sum with every partial sum exact in float64: 2**10 * 2**43 = 2**53."""
+"""Weights of ``exact_bmm`` are clipped to [-128, 128]: 2**7 * 2**20 * 2**20 = 2**47 bounds a product."""
+CHUNK_TERMS = 2 ** 6
+"""Terms summed exactly at once: every partial sum of 2**6 products is below 2**53, an integer
+float64 holds exactly. Longer sums add these chunks' sums one after the other."""
 
 
 def sqrt(x: torch.Tensor) -> torch.Tensor:
@@ -158,14 +160,22 @@ def input_grid(x: torch.Tensor) -> torch.Tensor:
     return torch.round(x.clamp(-1.0, 1.0) * 2.0 ** INPUT_BITS).to(torch.float64)
 
 
+def grid_bmm(left: torch.Tensor, right: torch.Tensor) -> torch.Tensor:
+    """``left @ right`` for float64 integer grids (``input_grid`` and ``grid_weights``, in either
+    order), in units of ``GRID_UNIT``: exact for each ``CHUNK_TERMS`` terms, and the chunks added
+    in order, so the same bits whatever the BLAS does."""
+    terms = left.shape[-1]
+    total = torch.bmm(left[..., :CHUNK_TERMS], right[..., :CHUNK_TERMS, :])
+    for start in range(CHUNK_TERMS, terms, CHUNK_TERMS):
+        total = total + torch.bmm(left[..., start:start + CHUNK_TERMS], right[..., start:start + CHUNK_TERMS, :])
+    return total * GRID_UNIT
+
+
 def exact_bmm(x: torch.Tensor, w_grid: torch.Tensor, bias: torch.Tensor | None = None) -> torch.Tensor:
     """``bias + x @ w`` for ``x (P, R, K)`` and ``w_grid (P, K, N)`` from ``grid_weights``, with
-    ``x`` on ``input_grid``: every product and partial sum is an integer below 2**53, so the
-    float64 sum is exact in any order (``K <= MAX_TERMS``). ``bias`` (broadcast to ``(P, R, N)``)
-    is added in float64; the result is rounded to ``x``'s dtype."""
-    if x.shape[-1] > MAX_TERMS:
-        raise ValueError(f"exact_bmm sums at most {MAX_TERMS} terms, got {x.shape[-1]}")
-    total = torch.bmm(input_grid(x), w_grid) * GRID_UNIT
+    ``x`` on ``input_grid`` (``grid_bmm``). ``bias`` (broadcast to ``(P, R, N)``) is added in
+    float64; the result is rounded to ``x``'s dtype."""
+    total = grid_bmm(input_grid(x), w_grid)
     if bias is not None:
         total = total + bias.to(torch.float64)
     return total.to(x.dtype)

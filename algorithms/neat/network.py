@@ -203,8 +203,7 @@ class CompiledPopulation:
 def _add_weighted(base: torch.Tensor, w_grid: torch.Tensor, z: torch.Tensor, start: int) -> torch.Tensor:
     """``base + w @ z[:, :start]`` as a new tensor, with ``w @ z`` exact (``numerics.exact_bmm``,
     here with the weights on the left)."""
-    sources = numerics.input_grid(z[:, :start])
-    total = torch.bmm(w_grid, sources) * numerics.GRID_UNIT + base.to(torch.float64)
+    total = numerics.grid_bmm(w_grid, numerics.input_grid(z[:, :start])) + base.to(torch.float64)
     return total.to(base.dtype)
 
 
