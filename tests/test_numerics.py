@@ -1,0 +1,109 @@
+"""The portable arithmetic (``envs.numerics``) and what it promises: the arena's step and the
+built-in controllers give the same bits eagerly and compiled, at any batch size, and under every
+ATen dispatch this CPU offers (the scalar one of a CPU without AVX2, AVX2, AVX-512), so that a
+run's fitness depends on its seed and settings alone. Each check compares whole tensors bit for
+bit; torch's own ``sqrt``, ``sin``, ``sigmoid`` and matrix products fail them."""
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from algorithms import make_optimizer
+from envs import TASKS, ForagingConfig, ForagingEnv, numerics, outputs_to_wheels
+from lifelong_evo.evaluate import sample_episodes
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_sqrt_is_correctly_rounded():
+    x = torch.rand(200_000, generator=torch.Generator().manual_seed(0)) * 800
+    exact = torch.tensor([math.sqrt(v) for v in x.double().tolist()], dtype=torch.float64).float()
+    assert torch.equal(numerics.sqrt(x), exact)
+
+
+def test_the_tables_follow_their_functions():
+    x = torch.linspace(-30, 30, 100_001)
+    assert float((numerics.sigmoid(x).double() - torch.sigmoid(x.double())).abs().max()) < 1e-7
+    assert float((numerics.tanh(x / 4).double() - torch.tanh(x.double() / 4)).abs().max()) < 2e-7
+    assert numerics.sigmoid(torch.tensor([-math.inf, math.inf])).tolist() == [0.0, 1.0]
+    degrees = torch.rand(100_000, generator=torch.Generator().manual_seed(1)) * 360
+    sin, cos = numerics.sin_cos_degrees(degrees)
+    radians = torch.deg2rad(degrees.double())
+    assert float((sin.double() - torch.sin(radians)).abs().max()) < 1e-7
+    assert float((cos.double() - torch.cos(radians)).abs().max()) < 1e-7
+
+
+def test_a_table_value_does_not_depend_on_its_neighbours():
+    """The body of a tensor and its tail (which torch's vectorised kernels treat apart) agree."""
+    x = torch.randn(1_003, generator=torch.Generator().manual_seed(2)) * 5
+    whole = numerics.sigmoid(x)
+    assert all(torch.equal(numerics.sigmoid(x[i:i + 7]), whole[i:i + 7]) for i in range(0, 990, 7))
+
+
+def test_a_grid_product_is_exact_in_any_order():
+    gen = torch.Generator().manual_seed(3)
+    x = torch.rand(4, 9, 100, generator=gen) * 2 - 1  # 100 terms: two chunks
+    w = torch.randn(4, 100, 5, generator=gen)
+    got = numerics.exact_bmm(x, numerics.grid_weights(w))
+    reversed_terms = numerics.exact_bmm(x.flip(-1), numerics.grid_weights(w.flip(1)))
+    assert torch.equal(got, reversed_terms)
+    assert torch.allclose(got.double(), torch.bmm(x.double(), w.double()), atol=1e-4)
+
+
+def test_the_step_is_the_same_eager_and_compiled():
+    """Every observation and reward of 40 steps, from one state, with one NEAT population's
+    actions: eagerly and compiled (torch's sqrt and sin differ between the two in the last bit)."""
+    config = ForagingConfig()
+    batch = 60
+    episodes = sample_episodes(config, [TASKS["red"]], batch, torch.Generator().manual_seed(4))
+    eager, compiled = ForagingEnv(config, batch_size=batch), ForagingEnv(config, batch_size=batch)
+    compiled.compile()
+    policy = make_optimizer("neat", obs_dim=config.obs_dim, population_size=batch // 10, seed=5).ask()
+    seen_eager, seen_compiled = eager.reset(state=episodes), compiled.reset(state=episodes)
+    for step in range(40):
+        wheels = outputs_to_wheels(policy(seen_eager.view(batch // 10, 10, config.n_agents, -1)), config)
+        seen_eager, reward_eager, _, _ = eager.step(wheels.view(batch, config.n_agents, 3))
+        seen_compiled, reward_compiled, _, _ = compiled.step(wheels.view(batch, config.n_agents, 3))
+        assert torch.equal(seen_eager, seen_compiled), f"step {step}"
+        assert torch.equal(reward_eager, reward_compiled), f"step {step}"
+
+
+FITNESS = """
+import hashlib, sys, torch
+from dataclasses import replace
+from algorithms import make_optimizer
+from envs import TASKS, ForagingConfig
+from lifelong_evo.evaluate import evaluate
+algo, threads = sys.argv[1], int(sys.argv[2])
+config = replace(ForagingConfig(), duration=500)
+policy = make_optimizer(algo, obs_dim=config.obs_dim, population_size=20, seed=6).ask()
+fitness = evaluate(policy, config, [TASKS["red"], TASKS["green"]], 3, torch.Generator().manual_seed(7),
+                   eval_threads=threads)
+print(hashlib.sha256(fitness.numpy().tobytes()).hexdigest(), float(fitness.abs().sum()))
+"""
+
+
+def _fitness(algo: str, capability: str, threads: int) -> tuple[str, float]:
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "ATEN_CPU_CAPABILITY": capability}
+    result = subprocess.run([sys.executable, "-c", FITNESS, algo, str(threads)], env=env, capture_output=True,
+                            text=True, timeout=600, check=True)
+    digest, total = result.stdout.split()
+    return digest, float(total)
+
+
+@pytest.mark.parametrize("algo", ["neat", "openai-es"])
+def test_fitness_is_the_same_under_every_dispatch_and_thread_count(algo):
+    """A population's fitness under ATen's scalar, AVX2 and AVX-512 kernels (as far as this CPU
+    has them) and over one or two evaluation threads. OpenAI-ES samples its population with
+    torch's normal generator, whose float32 stream the scalar dispatch draws differently (a CPU
+    without AVX2, which the promise leaves out), so it is held to AVX2 and up."""
+    settings = [("avx2", 1), ("avx512", 2)] if algo != "neat" else [("default", 1), ("avx2", 2), ("avx512", 1)]
+    runs = {(capability, threads): _fitness(algo, capability, threads) for capability, threads in settings}
+    assert next(iter(runs.values()))[1] > 0, "a fixture that scores 0 everywhere proves nothing"
+    assert len({digest for digest, _ in runs.values()}) == 1, runs
