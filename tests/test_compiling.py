@@ -14,6 +14,7 @@ import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Callable
 
 import pytest
 import torch
@@ -144,38 +145,48 @@ def test_a_failing_compiler_runs_the_step_eagerly_with_one_warning(tmp_path):
     assert (out / "compiled/metrics.csv").read_text() == (out / "eager/metrics.csv").read_text()
 
 
-@pytest.fixture
-def compiling_fails(monkeypatch):
-    """``torch.compile`` as seen by the step gives functions that raise, as a broken compiler
-    makes them; the process-wide fallback starts (and is left) unset."""
-    def broken_compile(function, **options):
+class BrokenCompiler:
+    """``torch.compile`` as a broken compiler makes it: the functions it gives raise, each after
+    calling ``before_failing``."""
+
+    def __init__(self):
+        self.before_failing: Callable[[], object] = lambda: None
+
+    def __call__(self, function, **options):
         def compiled(*args, **kwargs):
+            self.before_failing()
             raise RuntimeError("simulated compiler failure\nwith a second line")
         return compiled
-    monkeypatch.setattr(execution.torch, "compile", broken_compile)
+
+
+@pytest.fixture
+def compiling_fails(monkeypatch) -> BrokenCompiler:
+    """The step's ``torch.compile`` is a ``BrokenCompiler``; the process-wide fallback starts (and
+    is left) unset."""
+    broken = BrokenCompiler()
+    monkeypatch.setattr(execution.torch, "compile", broken)
     monkeypatch.setattr(execution, "_compiling_failed", None)
+    return broken
 
 
 def test_the_fallback_is_taken_once_per_process(compiling_fails, capfd):
-    """Two threads step two compiled environments whose compiling fails at once: one warning in
-    all, and every step gives the eager step's numbers."""
+    """Two threads step two compiled environments, and both meet the failure at once (each waits
+    for the other before failing): one warning in all, and every step gives the eager numbers."""
+    compiling_fails.before_failing = threading.Barrier(2).wait
     config = ForagingConfig(duration=30)
-    eager = ForagingEnv(config, batch_size=4)
-    compiled = [ForagingEnv(config, batch_size=4) for _ in range(2)]
-    barrier = threading.Barrier(2)
 
-    def play(env: ForagingEnv, compile_it: bool) -> torch.Tensor:
-        if compile_it:
-            env.compile()
-            barrier.wait()
+    def play(env: ForagingEnv) -> torch.Tensor:
         env.reset(TASKS["red"], generator=1)
         wheels = torch.Generator().manual_seed(2)
         return torch.stack([env.step(torch.rand(4, config.n_agents, 3, generator=wheels) * 2 - 1)[1]
                             for _ in range(30)])
 
+    compiled = [ForagingEnv(config, batch_size=4) for _ in range(2)]
+    for env in compiled:
+        env.compile()
     with ThreadPoolExecutor(2) as pool:
-        results = list(pool.map(play, compiled, [True, True]))
-    expected = play(eager, False)
+        results = list(pool.map(play, compiled))
+    expected = play(ForagingEnv(config, batch_size=4))
     assert all(torch.equal(result, expected) for result in results)
     err = capfd.readouterr().err
     assert err.count(WARNING) == 1 and len(err.splitlines()) == 1, err
