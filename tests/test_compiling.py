@@ -112,14 +112,17 @@ def test_code_compiled_under_one_dispatch_is_never_loaded_under_another(tmp_path
     assert len(list(tmp_path.iterdir())) == 2, "one folder per dispatch"
 
 
-def test_two_processes_compiling_at_once_under_different_dispatches(tmp_path):
-    """What a sweep of two workers does (each compiles, both at once), here under different
-    dispatch settings on one fresh cache: both compile, neither falls back to eager, and both
-    give the exact results. (Compiled like the step's phases; the step itself is compiled in
-    ``test_env_rules.py`` and a compiled run in ``test_lifelong_run.py``.)"""
+def test_processes_compiling_at_once_under_one_dispatch_and_another(tmp_path):
+    """What a sweep of two workers does (each compiles, both at once), here with a third process
+    under another dispatch setting, all three on one fresh cache: each compiles, none falls back
+    to eager, and each gives the exact results. (Compiled like the step's phases; the step itself
+    is compiled in ``test_env_rules.py`` and a compiled run in ``test_lifelong_run.py``.) The two
+    under one dispatch share a folder: inductor builds each file under a lock of its own and
+    writes every cache entry whole (a temporary file renamed into place)."""
     _needs_a_vector_dispatch()
-    processes = [_python(ELEMENTWISE, cache=tmp_path, capability=capability) for capability in ("default", None)]
-    assert [json.loads(_finish(process)) for process in processes] == [_exact_elementwise()] * 2
+    processes = [_python(ELEMENTWISE, cache=tmp_path, capability=capability) for capability in ("default", None, None)]
+    assert [json.loads(_finish(process)) for process in processes] == [_exact_elementwise()] * 3
+    assert len(list(tmp_path.iterdir())) == 2, "one folder per dispatch"
 
 
 @pytest.mark.skipif(shutil.which("g++") is None, reason="the failing compiler answers inductor's probe with g++'s")
