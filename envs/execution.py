@@ -17,7 +17,11 @@ cell) and ``_settle_and_sense`` (picks, drops, rewards, respawns, counters, obse
 
 Contract: the in-place step and its graph give the plain step's numbers bit for bit; from one
 state, the compiled step gives the plain step's events and rewards, and its floats to rounding
-(docs/environment.md, "Compiling"). The class that inherits this one defines the three phases,
+(docs/environment.md, "Compiling"). Compiling never ends a run: inductor keeps what it builds in a
+folder of its own per torch version and CPU dispatch (``compile_cache_dir``), so that code built
+for one dispatch is never loaded under another, and whatever fails while compiling or running
+the compiled code makes the whole process run the step eagerly from then on, with one warning
+line on stderr (``compiled_phase``). The class that inherits this one defines the three phases,
 ``config``, ``device`` and ``_arena`` (the current ``Arena``, None before the first reset); it
 stores every new state through ``_start``, steps through ``_run_step`` and, in
 ``_settle_and_sense``, asks ``_must_respawn`` whether to run the respawn.
@@ -25,12 +29,16 @@ stores every new state through ``_start``, steps through ``_run_step`` and, in
 from __future__ import annotations
 
 import functools
+import os
+import re
+import sys
 import threading
 from dataclasses import replace
 from typing import Callable
 
 import torch
 import torch._dynamo
+from torch._inductor.runtime.cache_dir_utils import default_cache_dir
 
 from .config import ConfigError
 from .sensing import batch_first
@@ -62,18 +70,106 @@ def compile_every_batch_size() -> None:
     dynamo.fail_on_recompile_limit_hit = True
 
 
-def in_every_thread(compiled: Callable) -> Callable:
-    """``compiled`` (a ``torch.compile`` function) called with ``compile_every_batch_size``'s
-    settings in force in whichever thread calls it. An environment compiled in one thread and
-    stepped in another (an evaluation thread of a later generation, a sweep's next trial) would
-    otherwise meet that thread's defaults: a ninth batch size would run eagerly, silently."""
-    @functools.wraps(compiled)
+CACHE_FOLDER_PREFIX = "lifelong-evo-"
+"""The start of the name of every inductor cache folder ``compile_cache_dir`` chooses."""
+
+
+def compile_cache_dir() -> str:
+    """The folder inductor keeps this process's compiled step in: one per torch version, CPU
+    dispatch (``torch.backends.cpu.get_cpu_capability()``) and ``ATEN_CPU_CAPABILITY`` setting,
+    inside ``TORCHINDUCTOR_CACHE_DIR`` where that is set, else inside inductor's own per-user
+    default (``/tmp/torchinductor_<user>``).
+
+    Inductor's cache key leaves the dispatch out: a process under ``ATEN_CPU_CAPABILITY=default``
+    (scalar code) found the step that an AVX-512 process had generated and compiled its vector
+    code without the vector headers (``'at::vec' has not been declared``), and an AVX2 process
+    that found AVX-512 code read garbage through it. Within one folder, inductor's own file locks
+    make processes that compile at once safe (each build runs under a lock on its key). A folder
+    chosen here and inherited through ``TORCHINDUCTOR_CACHE_DIR`` (by a sweep's workers, say)
+    is replaced, not nested: a child under another dispatch gets its own sibling folder."""
+    root = os.environ.get("TORCHINDUCTOR_CACHE_DIR") or default_cache_dir()
+    root = os.path.abspath(root)
+    if os.path.basename(root).startswith(CACHE_FOLDER_PREFIX):
+        root = os.path.dirname(root)
+    requested = os.environ.get("ATEN_CPU_CAPABILITY") or "unset"
+    name = (f"{CACHE_FOLDER_PREFIX}torch-{torch.__version__}-{torch.backends.cpu.get_cpu_capability()}"
+            f"-aten-{requested}")
+    return os.path.join(root, re.sub(r"[^A-Za-z0-9._+-]", "_", name))
+
+
+COMPILE_OPTIONS = {
+    # every gather index is clamped into range, so inductor's per-element index checks can go
+    "assert_indirect_indexing": False,
+    # the C++ wrapper releases the GIL while the step runs, so evaluation threads step in parallel
+    "cpp_wrapper": True,
+}
+"""Inductor's options for the step's two graphs."""
+
+_fallback_lock = threading.Lock()
+_compiling_failed: str | None = None
+"""Why compiling the step failed in this process (one line); None while it has not."""
+
+
+def compiled_phase(phase: Callable) -> Callable:
+    """``phase`` (a phase of the step) compiled with ``torch.compile``, called with
+    ``compile_every_batch_size``'s settings in force in whichever thread calls it, and run
+    eagerly once compiling has failed in this process.
+
+    The settings: an environment compiled in one thread and stepped in another (an evaluation
+    thread of a later generation, a sweep's next trial) would otherwise meet that thread's
+    defaults, and a ninth batch size would run eagerly, silently.
+
+    The fallback: torch compiles lazily, at a phase's first call for each batch size, so this
+    is where a compiler error, or a failure of the compiled code, shows. The call is then
+    repeated eagerly; if that fails too, the failure is the step's own and is raised as it is.
+    Otherwise every compiled phase of every environment in the process runs eagerly from then
+    on, which gives ``--no-compile``'s numbers, and one warning line says so (one per process,
+    however many evaluation threads failed at once)."""
+    compiled = torch.compile(phase, dynamic=False, options=COMPILE_OPTIONS)
+
+    @functools.wraps(phase)
     def call(*args, **kwargs):
-        dynamo = torch._dynamo.config
-        if not (dynamo.fail_on_recompile_limit_hit and dynamo.recompile_limit >= COMPILED_BATCH_SIZES):
-            compile_every_batch_size()
-        return compiled(*args, **kwargs)
+        if _compiling_failed is None:
+            dynamo = torch._dynamo.config
+            if not (dynamo.fail_on_recompile_limit_hit and dynamo.recompile_limit >= COMPILED_BATCH_SIZES):
+                compile_every_batch_size()
+            try:
+                return compiled(*args, **kwargs)
+            except Exception as failure:  # noqa: BLE001 - whatever the compiler does, the eager step decides
+                outputs = phase(*args, **kwargs)
+                _run_eagerly_from_now_on(failure)
+                return outputs
+        return phase(*args, **kwargs)
     return call
+
+
+def _run_eagerly_from_now_on(failure: Exception) -> None:
+    """Make every compiled phase in this process run eagerly, and say so once, on stderr."""
+    global _compiling_failed
+    with _fallback_lock:
+        if _compiling_failed is not None:
+            return
+        _compiling_failed = _one_line(failure)
+    print(f"warning: compiling the step failed ({_compiling_failed}); running it eagerly, which gives "
+          f"--no-compile's numbers, more slowly; --no-compile skips the attempt", file=sys.stderr, flush=True)
+
+
+def _one_line(failure: BaseException) -> str:
+    """The innermost error of ``failure`` as one line: its class and its message's first line, and
+    for a compiler's error the first line of its output that names an error (``CppCompileError``
+    keeps the compiler's output in ``output``; dynamo's wrappers keep theirs in ``inner_exception``)."""
+    while isinstance(getattr(failure, "inner_exception", None), BaseException):
+        failure = failure.inner_exception
+    text = f"{type(failure).__name__}: {_first_line(str(failure))}".rstrip(": ")
+    output = getattr(failure, "output", None)
+    if isinstance(output, str) and output.strip():
+        lines = [line for line in output.splitlines() if line.strip()]
+        text += ": " + _first_line(next((line for line in lines if "error" in line), lines[0]))
+    return text
+
+
+def _first_line(text: str) -> str:
+    return next((line.strip() for line in text.splitlines() if line.strip()), "")
 
 
 class StepExecution:
@@ -94,16 +190,16 @@ class StepExecution:
         """Compile the step with ``torch.compile``, as the two fused graphs around the rare
         pick conflicts: moving and reaching, then settling and sensing (static shapes: each
         batch size compiles once, every one of them, whichever thread steps it:
-        ``in_every_thread``). Observations outside ``step`` stay eager.
+        ``compiled_phase``). Observations outside ``step`` stay eager.
 
         The graphs run under inductor's C++ wrapper, which releases the GIL: several Python
         threads, each stepping its own environment, then run in parallel (see
-        ``lifelong_evo.evaluate``)."""
-        # every gather index is clamped into range, so inductor's per-element index checks can go
-        options = {"assert_indirect_indexing": False, "cpp_wrapper": True}
-        self._move_and_reach = in_every_thread(torch.compile(self._move_and_reach, dynamic=False, options=options))
-        self._settle_and_sense = in_every_thread(torch.compile(self._settle_and_sense, dynamic=False,
-                                                               options=options))
+        ``lifelong_evo.evaluate``). Inductor keeps them in ``compile_cache_dir()``, set here,
+        before the first compile (torch compiles at the first step). If compiling fails, the
+        step runs eagerly, with a warning (``compiled_phase``)."""
+        os.environ["TORCHINDUCTOR_CACHE_DIR"] = compile_cache_dir()
+        self._move_and_reach = compiled_phase(self._move_and_reach)
+        self._settle_and_sense = compiled_phase(self._settle_and_sense)
         self._graph = None  # a graph captured before would replay the eager step: capture again
 
     def graph_step(self, capture: bool | None = None) -> None:
