@@ -65,6 +65,7 @@ class ForagingEnv(StepExecution):
         self.device = torch.device(device)
         self.dtype = dtype
         c = self.config
+        self._kinematics_t = torch.tensor(KINEMATICS, dtype=dtype, device=self.device).T.contiguous()
         self._slot_type_offsets = (torch.arange(c.n_neighbors, device=self.device) * c.n_types)[:, None, None]
         self._box_ids = torch.arange(c.n_boxes, dtype=torch.int32, device=self.device)[:, None]
         self._cells_per_row = math.ceil(c.size) + 1  # box coordinates are integers in [0, size]
@@ -381,7 +382,10 @@ class ForagingEnv(StepExecution):
 
     def _kinematics(self, wheels: torch.Tensor) -> torch.Tensor:
         """``KINEMATICS @ wheels`` for wheel speeds ``(3, A, B)``, summed term by term in a fixed
-        order (a matrix product's order is its BLAS's choice, which differs between CPUs)."""
+        order (a matrix product's order is its BLAS's choice, which differs between CPUs); under
+        native numerics, the matrix product."""
+        if numerics.native():
+            return (wheels.permute(2, 1, 0) @ self._kinematics_t).permute(2, 1, 0)
         k = KINEMATICS
         return torch.stack([(wheels[0] * k[row][0] + wheels[1] * k[row][1]) + wheels[2] * k[row][2]
                             for row in range(3)])

@@ -23,14 +23,39 @@ What is used instead, each from IEEE's correctly rounded operations only (``+ - 
   add their chunks in a fixed order).
 
 The module is shared by the arena and the built-in controllers (``algorithms``), and knows
-nothing of either.
+nothing of either. ``use("native")`` switches both back to torch's own functions (faster, and
+the numbers of runs made before this module existed, on the machine that made them): the choice
+is the process's, made before a run plays its first episode (``RunConfig.numerics``).
 """
 from __future__ import annotations
 
 import math
-from typing import Callable
+from typing import Callable, Literal
 
 import torch
+
+Numerics = Literal["portable", "native"]
+NUMERICS: tuple[str, ...] = ("portable", "native")
+"""``portable``: this module's arithmetic, the same bits everywhere; ``native``: torch's own."""
+_mode: str = "portable"
+
+
+def use(mode: str) -> None:
+    """Compute with ``mode`` (one of ``NUMERICS``) from now on in this process."""
+    global _mode
+    if mode not in NUMERICS:
+        raise ValueError(f"numerics must be one of {', '.join(NUMERICS)}, got {mode!r}")
+    _mode = mode
+
+
+def mode() -> str:
+    """The arithmetic this process computes with (``use``)."""
+    return _mode
+
+
+def native() -> bool:
+    """Whether this process computes with torch's own functions (``use``)."""
+    return _mode == "native"
 
 INPUT_BITS = 20
 """Inputs of ``exact_bmm`` lie on multiples of 2**-20 (about 1e-6) in [-1, 1]."""
@@ -45,7 +70,7 @@ float64 holds exactly. Longer sums add these chunks' sums one after the other.""
 
 def sqrt(x: torch.Tensor) -> torch.Tensor:
     """The correctly rounded square root of float32 ``x`` (other dtypes: torch's own)."""
-    if x.dtype != torch.float32:
+    if x.dtype != torch.float32 or native():
         return torch.sqrt(x)
     return torch.sqrt(x.to(torch.float64)).to(torch.float32)
 
@@ -79,8 +104,10 @@ class Table:
         position = x.clamp(self.low, self.high) * self.scale
         below = position.floor()
         fraction = position - below
-        index = below.long() + (shift - self.first)
-        return values[index] + fraction * slopes[index]
+        # the sample's number as a float (exact: an integer below 2**24), then int32: torch's int64
+        # arithmetic and its gathers are several times slower than this on the CPU
+        index = (below + float(shift - self.first)).to(torch.int32).view(-1)
+        return values.index_select(0, index).view(x.shape) + fraction * slopes.index_select(0, index).view(x.shape)
 
 
 def _sin_degrees(degrees: float) -> float:
@@ -116,7 +143,18 @@ def _exp(x: float) -> float:
 
 
 def _sigmoid(x: float) -> float:
+    """The logistic function, exactly 0 and 1 from -``SIGMOID_RANGE`` and ``SIGMOID_RANGE`` on."""
+    if abs(x) >= SIGMOID_RANGE:
+        return 0.0 if x < 0 else 1.0
     return 1.0 / (1.0 + _exp(-x)) if x >= 0 else _exp(x) / (1.0 + _exp(x))
+
+
+def _tanh(x: float) -> float:
+    """tanh, exactly -1 and 1 from -``TANH_RANGE`` and ``TANH_RANGE`` on."""
+    if abs(x) >= TANH_RANGE:
+        return math.copysign(1.0, x)
+    small = _exp(-2.0 * abs(x))
+    return math.copysign((1.0 - small) / (1.0 + small), x)
 
 
 SIN_DEGREES = Table(_sin_degrees, 0.0, 450.0, 6)
@@ -125,23 +163,29 @@ SIGMOID_RANGE = 24.0
 """Beyond +-24, sigmoid is 0 or 1: sigmoid(-24) = 3.8e-11 is lost in 2 * out - 1 (a wheel's
 speed) and in ``exact_bmm``'s input grid alike."""
 SIGMOID = Table(_sigmoid, -SIGMOID_RANGE, SIGMOID_RANGE, 10)
-"""The logistic function every 1/1024 on [-24, 24]."""
+"""The logistic function every 1/1024 on [-24, 24] (its ends exactly 0 and 1)."""
+TANH_RANGE = 12.0
+"""Beyond +-12, tanh is -1 or 1 (1 - tanh(12) = 7.6e-11)."""
+TANH = Table(_tanh, -TANH_RANGE, TANH_RANGE, 10)
+"""tanh every 1/1024 on [-12, 12] (its ends exactly -1 and 1)."""
 
 
 def sin_cos_degrees(degrees: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """(sin, cos) of angles in [0, 360] degrees (cos: the sine table 90 degrees on)."""
+    if native():
+        radians = torch.deg2rad(degrees)
+        return torch.sin(radians), torch.cos(radians)
     return SIN_DEGREES(degrees), SIN_DEGREES(degrees, shift=int(90 * SIN_DEGREES.scale))
 
 
 def sigmoid(x: torch.Tensor) -> torch.Tensor:
-    """The logistic function, exactly 0 below -``SIGMOID_RANGE`` (-inf gives 0.0) and 1 above it."""
-    inside = SIGMOID(x) * (x > -SIGMOID_RANGE)
-    return inside + (x >= SIGMOID_RANGE) * (1.0 - inside)
+    """The logistic function: 0 from -``SIGMOID_RANGE`` down (-inf gives 0.0), 1 from ``SIGMOID_RANGE`` up."""
+    return torch.sigmoid(x) if native() else SIGMOID(x)
 
 
 def tanh(x: torch.Tensor) -> torch.Tensor:
-    """``2 * sigmoid(2 x) - 1``."""
-    return 2.0 * sigmoid(2.0 * x) - 1.0
+    """tanh: -1 and 1 beyond ``TANH_RANGE``."""
+    return torch.tanh(x) if native() else TANH(x)
 
 
 def grid_weights(w: torch.Tensor) -> torch.Tensor:

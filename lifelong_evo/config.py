@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from envs import ConfigError, ForagingConfig
+from envs.numerics import Numerics
 
 from .options import flag, parse_table, parse_value, schema
 from .schedule import (MAX_GENERATIONS, ScheduleError, arena_colors, distinct_tasks, parse_schedule,
@@ -46,9 +47,9 @@ class RunConfig:
     threads: int = field(default=1, metadata={"min": 1, "max": 1024})
     """Torch CPU threads per evaluation thread (one is faster for these small tensors)."""
     eval_threads: int = field(default=2, metadata={"min": 1, "max": 1024})
-    """Evaluation threads, each playing a slice of the population with its own env; a fixed count,
-    not the machine's, because the count can change the rounding of a run's numbers; 1 on a GPU,
-    where threads share the one device (docs/performance.md)."""
+    """Evaluation threads, each playing a slice of the population with its own env (the count
+    changes no number: docs/usage.md, Reproducibility); 1 on a GPU, where threads share the one
+    device (docs/performance.md)."""
     compile: bool = True
     """torch.compile the environment's step: faster steps after a compile per batch shape; needs a
     C++ compiler (docs/performance.md)."""
@@ -56,6 +57,10 @@ class RunConfig:
     """Replay the environment's step as one CUDA graph (needs --device cuda): the same numbers in
     one launch instead of many small kernels. With --compile the capture hung on the one GPU it
     was tried on (docs/performance.md)."""
+    numerics: Numerics = "portable"
+    """Arithmetic of the fitness: portable (the same numbers on every x86-64 CPU, whatever the speed
+    settings) or native (torch's own: faster, but the numbers follow the CPU and the speed
+    settings) (docs/usage.md, Reproducibility)."""
     record: bool = True
     """Write recording.rrd (Rerun)."""
     episodes_every: int = field(default=0, metadata={"min": 0, "max": MAX_GENERATIONS})
@@ -84,12 +89,15 @@ class RunConfig:
     algo_options: dict = field(default_factory=dict)
     """Optimiser options, e.g. sigma, learning_rate, hidden, importance, references."""
 
+    WRITTEN_BEFORE: ClassVar[dict[str, Any]] = {"numerics": "native"}
+    """Settings a config.json written before they existed ran at, where that is not today's default."""
     SEED_SETTINGS: ClassVar[tuple[str, ...]] = ("seed",)
     """Which repetition of a configuration a run is."""
     SPEED_SETTINGS: ClassVar[tuple[str, ...]] = ("device", "threads", "eval_threads", "compile", "cuda_graphs",
                                                  "checkpoint_every")
-    """How a run is computed: they change at most the rounding of its numbers, so runs that differ
-    only in them (and in the seed) are one configuration; a resumed run keeps them."""
+    """How a run is computed, not what: they change none of its numbers (docs/usage.md,
+    Reproducibility), so runs that differ only in them (and in the seed) are one configuration;
+    a resumed run keeps them."""
     OUTPUT_SETTINGS: ClassVar[tuple[str, ...]] = ("record", "episodes_every", "gap_window")
     """What a run records besides its numbers, which they never change: a resumed run may change them."""
     BASELINE_SETTINGS: ClassVar[tuple[str, ...]] = ("rehearsal", "joint", "from_scratch", "reference_every")

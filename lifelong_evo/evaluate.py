@@ -14,6 +14,7 @@ from typing import Callable, Iterator, Sequence
 import torch
 
 from algorithms.base import BatchedPolicy
+from envs import numerics
 from envs import ConfigError, ForagingConfig, ForagingEnv, ForagingState, Task, outputs_to_wheels
 
 
@@ -90,10 +91,10 @@ def run_episodes(policy: BatchedPolicy, config: ForagingConfig, episodes: Foragi
 
     With ``eval_threads > 1`` the population is split into that many shards (``policy.shard``), each
     played in its own thread by its own environment. The compiled step releases the GIL, so the
-    shards run in parallel. Each shard scores exactly as it would alone, so a given ``eval_threads``
-    always gives the same numbers; another count can round the last bit of a float differently
-    (vectorised maths handles the tail of each tensor apart). A policy without ``shard`` is played
-    in one thread whatever ``eval_threads`` says.
+    shards run in parallel. Each shard scores exactly as it would alone, and with the portable
+    arithmetic (``envs.numerics``) a controller scores the same in any shard, so every
+    ``eval_threads`` gives the same numbers. A policy without ``shard`` is played in one thread
+    whatever ``eval_threads`` says.
     """
     bounds = shard_bounds(policy.population_size, eval_threads)
     if len(bounds) == 1 or not callable(getattr(policy, "shard", None)):
@@ -168,14 +169,17 @@ class Evaluation:
     compiled: bool = False
     eval_threads: int = 1
     cuda_graphs: bool = False
+    numerics: str = "portable"
+    """The arithmetic (``envs.numerics.use``) the evaluation is played in."""
 
     def run(self) -> torch.Tensor:
+        numerics.use(self.numerics)
         return evaluate(self.policy, self.config, self.tasks, self.n_envs, self.generator, self.device,
                         compiled=self.compiled, eval_threads=self.eval_threads, cuda_graphs=self.cuda_graphs)
 
     def batch(self) -> tuple:
         """What evaluations must share to be played in one environment batch."""
-        return self.config, str(self.device), self.compiled, self.cuda_graphs
+        return self.config, str(self.device), self.compiled, self.cuda_graphs, self.numerics
 
 
 def evaluate_together(evaluations: Sequence[Evaluation]) -> list[torch.Tensor]:
@@ -191,6 +195,7 @@ def evaluate_together(evaluations: Sequence[Evaluation]) -> list[torch.Tensor]:
         batches.setdefault(evaluation.batch(), []).append(index)
     for indices in batches.values():
         members = [evaluations[i] for i in indices]
+        numerics.use(members[0].numerics)
         for i, result in zip(indices, _play_together(members)):
             fitness[i] = result
     return fitness

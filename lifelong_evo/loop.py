@@ -32,6 +32,7 @@ from typing import Any, Callable, Generator, Iterator, Sequence
 import torch
 
 from algorithms import make_optimizer, policy_from_export
+from envs import numerics
 
 from . import checkpoint
 from .config import RunConfig, check_device
@@ -142,6 +143,7 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
     including its end (``shares_first_task``), and goes on from there."""
     check_device(config.device)  # a resumed run or a sweep's trial may land on a machine without it
     torch.set_num_threads(config.threads)
+    numerics.use(config.numerics)
     phases = config.phases()
     phase_names = [p.name for p in phases]
     tasks = distinct_tasks(phases)
@@ -177,7 +179,7 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
         gap = stability_gap(read_metrics(run_dir.metrics), phase_names, config.gap_window) if config.gap_window else None
         return summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s, centre is not None,
                          state.held_out, config.held_out_episodes, state.first_task_from, stability_gap=gap,
-                         machines=state.machines)
+                         machines=state.machines, numerics=config.numerics)
 
     try:
         for generation, phase_index, in_task in _generations(phases, start=state.generation):
@@ -203,7 +205,8 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
             fitness = yield Evaluation(policy, env_config, [task for task, _ in training] + others,
                                        [n for _, n in training] + [config.evals] * len(others), generator,
                                        config.device, compiled=config.compile, eval_threads=config.eval_threads,
-                                       cuda_graphs=config.cuda_graphs)
+                                       cuda_graphs=config.cuda_graphs, numerics=config.numerics)
+            numerics.use(config.numerics)  # runs played in step (run_together) may compute otherwise
             raw = _mean_over_episodes(fitness[:len(training)], [n for _, n in training])
             regularised = optimizer.regularise(raw)
             # the top individual is the one selection favours, as in the paper's code: with a

@@ -108,14 +108,16 @@ def summarise(phase_names: list[str], phase_ends: list[dict[str, Any]], initial:
               wall_time_s: float, has_centre: bool, held_out: dict[str, dict[str, float]] | None = None,
               held_out_episodes: int | None = None, first_task_from: str = "", *,
               stability_gap: list[dict[str, Any]] | None = None,
-              machines: list[dict[str, Any]] | None = None) -> dict[str, Any]:
+              machines: list[dict[str, Any]] | None = None, numerics: str | None = None) -> dict[str, Any]:
     """summary.json from the task-end records (``loop.LoopState.phase_ends``), the generation-0
     scores and, where given, the exported controllers' held-out scores (``held_out_summary``);
     ``first_task_from``: the run whose first task this one took over (the wall time counts it);
     ``stability_gap``: the entries of ``stability_gap``, written as they are (None: no such key);
-    ``machines``: where the generations ran (``loop.LoopState.machines``), written as they are."""
+    ``machines``: where the generations ran (``loop.LoopState.machines``), written as they are;
+    ``numerics``: the arithmetic of the fitness (``RunConfig.numerics``)."""
     summary: dict[str, Any] = {"phases": phase_names[:len(phase_ends)], "wall_time_s": wall_time_s,
                                **({"machines": machines} if machines else {}),
+                               **({"numerics": numerics} if numerics else {}),
                                **({"first_task_from": first_task_from} if first_task_from else {}),
                                "current": [end["C"] for end in phase_ends],
                                "current_top": [end["R_top"][end["task"]] for end in phase_ends], "forgetting": []}

@@ -73,7 +73,8 @@ def check_config(values: Any, path: Path, written_beside: Iterable[str] = ()) ->
     if not isinstance(values, dict):
         raise RunDirError(f"{path} holds {_kind(values)}, not a JSON object of run settings: {FIX}")
     declared = schema(RunConfig)
-    settings = {key: value for key, value in values.items() if key not in set(written_beside)}
+    settings = {**RunConfig.WRITTEN_BEFORE,
+                **{key: value for key, value in values.items() if key not in set(written_beside)}}
     unknown = sorted(set(settings) - set(declared))
     if unknown:
         raise RunDirError(f"{path} has the key(s) {', '.join(map(repr, unknown))}, which are no run setting (the "

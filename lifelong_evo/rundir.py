@@ -821,7 +821,8 @@ def configuration_of(config: dict[str, Any]) -> dict[str, Any]:
     such runs evolve the same controllers whatever those options say."""
     # a setting that config.json lacks (written before the setting existed) ran at its default
     # the training plan follows from the settings beside it, which compare already
-    values = {**RunConfig().to_dict(), **{k: v for k, v in config.items() if k not in ("versions", "training_episodes")}}
+    values = {**RunConfig().to_dict(), **RunConfig.WRITTEN_BEFORE,
+              **{k: v for k, v in config.items() if k not in ("versions", "training_episodes")}}
     for given, resolved in RESOLVED:
         if resolved in values:
             values.pop(given, None)

@@ -189,6 +189,8 @@ class CompiledPopulation:
             x = observations.reshape(P, E * A, n)
             if x.dtype != self.dtype:
                 x = x.to(self.dtype)
+            if numerics.native():
+                return self._native_call(x).view(P, E, A, self.n_outputs)
             # input part of every slot plus the bias, (P, E*A, N), moved to (P, N, E*A)
             z = numerics.exact_bmm(x, self._w_in_grid, self.bias.mT).mT.contiguous()
             for (start, stop, _), w_grid in zip(self.blocks[:-1], self._block_grids):  # hidden depths
@@ -199,12 +201,42 @@ class CompiledPopulation:
             pre = z[:, start:] if w_grid is None else _add_weighted(z[:, start:], w_grid, z, start)
             return numerics.sigmoid(pre).mT.contiguous().view(P, E, A, self.n_outputs)
 
+    def _native_call(self, x: torch.Tensor) -> torch.Tensor:
+        """The pass in torch's own arithmetic (``numerics.use("native")``): ``(P, E*A, outputs)``."""
+        P, rows, _ = x.shape
+        # (x @ w is much faster than w^T @ x^T, which falls off a cliff for 56+ inputs)
+        z = torch.empty(P, self.w_in.shape[2], rows, dtype=self.dtype, device=self.device)
+        torch.add(torch.bmm(x, self.w_in).mT, self.bias, out=z)
+        for start, stop, w in self.blocks[:-1]:  # hidden depths
+            if w is None:  # depth 1: inputs and bias only
+                z[:, start:stop].sigmoid_()
+            else:
+                block = z[:, start:stop]
+                torch.sigmoid(_native_add_weighted(block, w, z, start), out=block)
+        start, _stop, w = self.blocks[-1]  # outputs
+        pre = z[:, start:] if w is None else _native_add_weighted(z[:, start:], w, z, start)
+        out = torch.empty(P, rows, self.n_outputs, dtype=z.dtype, device=z.device)
+        out.mT.copy_(pre.sigmoid_())  # (faster than a sigmoid that writes transposed)
+        return out
+
 
 def _add_weighted(base: torch.Tensor, w_grid: torch.Tensor, z: torch.Tensor, start: int) -> torch.Tensor:
     """``base + w @ z[:, :start]`` as a new tensor, with ``w @ z`` exact (``numerics.exact_bmm``,
     here with the weights on the left)."""
     total = numerics.grid_bmm(w_grid, numerics.input_grid(z[:, :start])) + base.to(torch.float64)
     return total.to(base.dtype)
+
+
+def _native_add_weighted(base: torch.Tensor, w: torch.Tensor, z: torch.Tensor, start: int) -> torch.Tensor:
+    """``base + w @ z[:, :start]`` in torch's arithmetic. aten's CPU bmm switches to a slow scalar
+    kernel for matrices with fewer than 400 multiply-adds, which very few sources (an early
+    generation, a thin depth) easily give; a few broadcast multiply-adds are faster there."""
+    if start <= 3 and start * w.shape[1] * z.shape[2] < 400:
+        out = torch.addcmul(base, w[:, :, 0:1], z[:, 0:1])
+        for j in range(1, start):
+            out.addcmul_(w[:, :, j:j + 1], z[:, j:j + 1])
+        return out
+    return torch.baddbmm(base, w, z[:, :start])
 
 
 # --------------------------------------------------------------------------------------------

@@ -27,7 +27,8 @@ import torch
 from algorithms import UnknownAlgorithmError, make_optimizer
 from algorithms.base import BatchedPolicy
 from algorithms.mlp import MLPPolicy, layer_sizes_for, n_parameters
-from envs import TASKS, ConfigError, ForagingConfig, ForagingEnv
+from envs import TASKS, ConfigError, ForagingConfig, ForagingEnv, numerics
+from envs.numerics import Numerics
 from lifelong_evo import memory
 from lifelong_evo.commands.flags import add_flags, typed
 from lifelong_evo.config import RunConfig
@@ -136,7 +137,7 @@ def bench_algo(algo: str, population: int, n_envs: int, generations: int, device
         with update_threads(threads, eval_threads):  # as the lifelong loop does
             policies, t_ask = _timed(lambda: [optimizer.ask() for optimizer in optimizers])
         evaluations = [Evaluation(policy, config, [TASKS["red"]], n_envs, generator, device, compiled=compiled,
-                                  eval_threads=eval_threads, cuda_graphs=cuda_graphs)
+                                  eval_threads=eval_threads, cuda_graphs=cuda_graphs, numerics=numerics.mode())
                        for policy, generator in zip(policies, generators)]
         play = (lambda: [evaluations[0].run()]) if runs == 1 else (lambda: evaluate_together(evaluations))
         fitness, t_eval = _timed(play)
@@ -187,6 +188,8 @@ class BenchSettings:
     """torch.compile the environment's step (compiled during the untimed warm-up)."""
     cuda_graphs: bool = False
     """Replay the environment's step as a CUDA graph (captured during the warm-up; --device cuda)."""
+    numerics: Numerics = "portable"
+    """Arithmetic of the environment and the controllers: portable or native (docs/usage.md, Reproducibility)."""
 
 
 def _parse_args(argv, env_class: type) -> argparse.Namespace:
@@ -210,8 +213,9 @@ def _parse_args(argv, env_class: type) -> argparse.Namespace:
             raise UserError(f"{flag} {','.join(map(str, sizes))}: one random controller drives {ENV_ROWS} "
                             f"environments, so give multiples of {ENV_ROWS}")
     # the run's own checks: the algorithm and its population, the device, a compiler, CUDA graphs on CUDA
+    numerics.use(args.numerics)
     workload = replace(RunConfig(), schedule="red", record=False, threads=args.threads, eval_threads=args.eval_threads,
-                       device=args.device, compile=args.compile, cuda_graphs=args.cuda_graphs,
+                       device=args.device, compile=args.compile, cuda_graphs=args.cuda_graphs, numerics=args.numerics,
                        **({"algo": args.algo, "population": args.population, "evals": args.evals} if args.algo
                           else {})).validate()
     if args.memory_check:

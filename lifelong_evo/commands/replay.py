@@ -13,7 +13,7 @@ import argparse
 from pathlib import Path
 
 from algorithms import policy_from_export
-from envs import TASKS
+from envs import TASKS, numerics
 
 from ..config import check_device
 from ..episodes import play_episodes
@@ -36,6 +36,7 @@ def replay(run: str | Path, task_name: str | None = None, episodes: int = 5, con
         raise UserError(f"--episodes must be >= 1, got {episodes}")
     check_device(device)
     config = run_dir.read_config()
+    numerics.use(config.numerics)  # the arithmetic the run computed its fitness in
     phases = config.phases()
     task_name = task_name or phases[-1].name
     if task_name not in TASKS:

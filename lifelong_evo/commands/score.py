@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from algorithms import policy_from_export
-from envs import ConfigError
+from envs import ConfigError, numerics
 
 from ..config import RunConfig, resolve
 from ..errors import UserError
@@ -74,6 +74,7 @@ def _file_config(path: Path, args: argparse.Namespace) -> RunConfig:
 def score_run(run_dir: RunDir, episodes: int | None = None) -> dict[str, Any]:
     """Score ``run_dir``'s exported controllers and rewrite summary.json's held-out block; returns it."""
     config = run_dir.read_config()
+    numerics.use(config.numerics)  # the arithmetic the run computed its fitness in
     episodes = episodes or config.held_out_episodes
     controllers = {name: exported for name, exported in run_dir.read_controllers().items()
                    if parse_controller_key(name) is not None}
@@ -111,6 +112,7 @@ def main(args: argparse.Namespace) -> int:
     for path, exported, config in files:
         _check_controllers(str(path.parent), {path.name: exported})
         try:
+            numerics.use(config.numerics)
             scores = score_controllers({path.stem: exported}, config.env_config(), distinct_tasks(config.phases()),
                                        episodes or HELD_OUT_EPISODES)
         except RuntimeError as error:  # the network's inputs do not match the arena's observations

@@ -1,0 +1,53 @@
+"""Two paper-size generations of NEAT (0.92's genetics) and of sep-CMA-ES, under different speed
+settings (eager and compiled, one and two evaluation threads, one and two torch threads), each
+writing byte for byte the metrics.csv, species.csv and controllers stored in
+``tests/data/same-numbers/`` (made under the portable arithmetic, ``envs.numerics``; the machine
+is named in its README). The promise (docs/usage.md, Reproducibility): the same seed and
+settings give the same bytes on any x86-64 CPU with AVX2, whatever the speed settings.
+
+To store them anew after a change that is meant to change the numbers:
+``LIFELONG_EVO_STORE_NUMBERS=1 python -m pytest tests/test_same_numbers_anywhere.py -n 0``, then
+name the machine in the README and the commit in docs/usage.md (Reproducibility)."""
+from __future__ import annotations
+
+import csv
+import io
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+from lifelong_evo.commands.cli import main
+
+STORED = Path(__file__).resolve().parent / "data" / "same-numbers"
+PAPER_SIZE = ["--schedule", "red:2", "--population", "300", "--evals", "10", "--seed", "42",
+              "--held-out-episodes", "10", "--no-record", "--quiet"]
+"""The paper's population, N and 500-step episodes, for two generations of one task."""
+SPEEDS = {
+    "eager-1": ["--no-compile", "--eval-threads", "1", "--threads", "1"],
+    "compiled-2": ["--compile", "--eval-threads", "2", "--threads", "1"],
+    "eager-2x2": ["--no-compile", "--eval-threads", "2", "--threads", "2"],
+}
+CASES = [("neat", ["--reg", "11"], "eager-1"), ("neat", ["--reg", "11"], "compiled-2"),
+         ("sep-cmaes", [], "compiled-2"), ("sep-cmaes", [], "eager-2x2")]
+
+
+def _written(run: Path) -> dict[str, bytes]:
+    files = [run / "metrics.csv", run / "species.csv", *sorted((run / "controllers").glob("*.json"))]
+    return {str(path.relative_to(run)): path.read_bytes() for path in files if path.exists()}
+
+
+@pytest.mark.parametrize("algo,settings,speed", CASES, ids=[f"{a}-{s}" for a, _, s in CASES])
+def test_a_run_writes_the_stored_bytes_under_every_speed_setting(tmp_path, algo, settings, speed):
+    assert main(["--algo", algo, *settings, *PAPER_SIZE, *SPEEDS[speed], "--out", str(tmp_path),
+                 "--name", "run"]) == 0
+    written = _written(tmp_path / "run")
+    stored_run = STORED / algo
+    if os.environ.get("LIFELONG_EVO_STORE_NUMBERS") and not stored_run.exists():
+        shutil.copytree(tmp_path / "run", stored_run, ignore=shutil.ignore_patterns(
+            "checkpoints", "*.rrd", "config.json", "summary.json", ".lock", ".lifelong-evo-run"))
+    assert written.keys() == _written(stored_run).keys()
+    assert [name for name in written if written[name] != _written(stored_run)[name]] == []
+    rows = list(csv.DictReader(io.StringIO(written["metrics.csv"].decode())))
+    assert len(rows) == 2 and max(float(row["best"]) for row in rows) > 0  # evolution met rewards
