@@ -5,6 +5,7 @@ run's fitness depends on its seed and settings alone. Each check compares whole 
 bit; torch's own ``sqrt``, ``sin``, ``sigmoid`` and matrix products fail them."""
 from __future__ import annotations
 
+import json
 import math
 import os
 import subprocess
@@ -107,3 +108,42 @@ def test_fitness_is_the_same_under_every_dispatch_and_thread_count(algo):
     runs = {(capability, threads): _fitness(algo, capability, threads) for capability, threads in settings}
     assert next(iter(runs.values()))[1] > 0, "a fixture that scores 0 everywhere proves nothing"
     assert len({digest for digest, _ in runs.values()}) == 1, runs
+
+
+def test_native_is_torchs_own_arithmetic():
+    """``use("native")`` switches every portable function back to torch's (and portable is the default)."""
+    x = torch.randn(10_000, generator=torch.Generator().manual_seed(8)) * 3
+    assert numerics.mode() == "portable"
+    portable = numerics.sigmoid(x), numerics.tanh(x), numerics.sqrt(x.abs())
+    numerics.use("native")
+    try:
+        assert torch.equal(numerics.sigmoid(x), torch.sigmoid(x)) and torch.equal(numerics.tanh(x), torch.tanh(x))
+        assert torch.equal(numerics.sqrt(x.abs()), torch.sqrt(x.abs()))
+        assert not torch.equal(numerics.sigmoid(x), portable[0]) and not torch.equal(numerics.tanh(x), portable[1])
+    finally:
+        numerics.use("portable")
+    with pytest.raises(ValueError, match="numerics must be one of portable, native"):
+        numerics.use("fast")
+
+
+def test_a_run_records_its_numerics_and_resume_keeps_them(tmp_path, capsys):
+    from lifelong_evo.commands.cli import main
+    from lifelong_evo.rundir import RunDir, configuration_of, read_json
+
+    small = ["--algo", "neat", "--preset", "smoke", "--generations", "1", "--env", "duration=30", "--no-record",
+             "--quiet", "--out", str(tmp_path), "--name", "run"]
+    try:
+        assert main([*small, "--numerics", "native"]) == 0
+    finally:
+        numerics.use("portable")  # the run chose native for this process
+    run = RunDir(tmp_path / "run")
+    assert read_json(run.config)["numerics"] == "native" and read_json(run.summary)["numerics"] == "native"
+    before = {path: path.read_bytes() for path in run.path.rglob("*") if path.is_file()}
+    assert main([*small, "--resume", "--numerics", "portable"]) == 2
+    assert "--numerics 'portable' (stored: 'native')" in capsys.readouterr().err
+    assert {path: path.read_bytes() for path in run.path.rglob("*") if path.is_file()} == before
+    # a config.json written before the setting existed ran natively, and reads so
+    written = read_json(run.config)
+    del written["numerics"]
+    run.config.write_text(json.dumps(written))
+    assert run.read_config().numerics == "native" and configuration_of(written)["numerics"] == "native"
