@@ -43,7 +43,7 @@ from .metrics import (INITIAL, FitnessStats, GenerationRecord, Retention, contro
                       summarise)
 from .progress import Progress
 from .recording import Recorder
-from .rundir import GenerationLog, MetricsLayout, ResumeError, RunDir, machine, read_metrics
+from .rundir import GenerationLog, MetricsLayout, ResumeError, RunDir, RunDirError, machine, read_metrics
 from .schedule import Phase, distinct_tasks, training_episodes
 
 
@@ -397,29 +397,37 @@ def check_start_from(config: RunConfig, run_dir: RunDir, source: RunDir) -> None
                           "without --start-from")
 
 
-def _first_task_of(source: RunDir, config: RunConfig, run_dir: RunDir) -> dict[str, Any]:
-    """The checkpoint of ``source``'s first task end, once checked (``check_start_from``) that a
-    run of ``config`` into ``run_dir`` may start from it."""
+def _first_task_of(source: RunDir, config: RunConfig, run_dir: RunDir) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The checkpoint of ``source``'s first task end and the controllers of that task, once checked
+    (``check_start_from``) that a run of ``config`` into ``run_dir`` may start from it: all read,
+    and refused where damaged, before the new run directory is made."""
     check_start_from(config, run_dir, source)
-    return checkpoint.load(source.first_task_end)
+    payload = checkpoint.load(source.first_task_end)
+    first = config.phases()[0].name
+    controllers = {name: exported for name, exported in source.read_controllers().items()
+                   if name.startswith((f"{INITIAL}-", f"task0-{first}-"))}
+    top = controller_key(0, first, "top")
+    if top not in controllers:
+        raise RunDirError(f"{source.controllers} has no {top}.json, the first task's top controller this run "
+                          "takes over: restore it from a copy of the run, or run without --start-from")
+    return payload, controllers
 
 
-def _take_first_task(config: RunConfig, run_dir: RunDir, source: RunDir, payload: dict[str, Any], optimizer,
-                     generator) -> LoopState:
-    """Make ``run_dir`` hold ``source``'s first task as its own (metrics and species rows, controllers,
-    a checkpoint of this run's configuration at the task's end) and load that state."""
+def _take_first_task(config: RunConfig, run_dir: RunDir, source: RunDir,
+                     first_task: tuple[dict[str, Any], dict[str, Any]], optimizer, generator) -> LoopState:
+    """Make ``run_dir`` hold ``source``'s first task (``_first_task_of``) as its own (metrics and
+    species rows, controllers, a checkpoint of this run's configuration at the task's end) and load
+    that state."""
+    payload, controllers = first_task
     own = {**payload, "config": config.to_dict(),
            "loop": {**payload["loop"], "first_task_from": str(source.path.resolve())}}
     state = _load_state(own, optimizer, generator)
     for log in ("metrics", "species"):
         if getattr(source, log).is_file():
             shutil.copyfile(getattr(source, log), getattr(run_dir, log))  # GenerationLog cuts it to the task
-    first = config.phases()[0].name
-    controllers = source.read_controllers()
     for name, exported in controllers.items():
-        if name.startswith((f"{INITIAL}-", f"task0-{first}-")):
-            run_dir.write_controller(name, exported)
-    run_dir.write_controller("final-top", controllers[controller_key(0, first, "top")])
+        run_dir.write_controller(name, exported)
+    run_dir.write_controller("final-top", controllers[controller_key(0, config.phases()[0].name, "top")])
     run_dir.save_checkpoint(state.generation, own)
     run_dir.save_first_task_end(own)
     return state

@@ -122,3 +122,22 @@ def test_a_from_scratch_run_stopped_right_after_taking_over_a_first_task_resumes
     alone, resumed = _files(tmp_path / "alone"), _files(tmp_path / "stopped")
     assert json.loads(alone.pop("config.json")) == json.loads(resumed.pop("config.json"))
     assert alone == resumed
+
+
+@pytest.mark.parametrize("damage", ["damaged", "missing"])
+def test_a_damaged_first_task_controller_is_refused_before_the_new_run_is_made(tmp_path, capsys, damage):
+    """The controllers a run takes over are read, and refused, before its run directory exists
+    (they were read after it was made, leaving it half-made)."""
+    assert main(["--algo", "neat", *COMMON, "--out", str(tmp_path), "--name", "source"]) == 0
+    top = tmp_path / "source" / "controllers" / "task0-red-top.json"
+    if damage == "missing":
+        top.unlink()
+    else:
+        top.write_text(json.dumps({"format": "neat-python-genome", "genome": "x"}))
+    capsys.readouterr()
+    before = snapshot(tmp_path)
+    assert main(["--algo", "neat", "--reg", "1", *COMMON, "--out", str(tmp_path), "--name", "new",
+                 "--start-from", str(tmp_path / "source")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "task0-red-top.json" in err
+    assert snapshot(tmp_path) == before and not (tmp_path / "new").exists()
