@@ -302,13 +302,17 @@ def test_every_drift_matches_oracle_in_one_batch():
 def test_mixed_batch_gives_each_environment_its_numbers_alone(dtype):
     """Every environment of a batch that mixes every kind of task gives, bit for bit, what it
     gives in a batch of its own: the per-environment task fields never leak across the batch."""
-    c = ForagingConfig(see_other_agents=True, duration=60)
+    c = ForagingConfig(see_other_agents=True, duration=200)
     batch = len(DRIFTS) * 2
     env = ForagingEnv(c, batch_size=batch, dtype=dtype)
     env.reset([DRIFTS[b % len(DRIFTS)] for b in range(batch)], generator=5)
     start = env.state
-    wheels = torch.rand(60, batch, c.n_agents, 3, generator=torch.Generator().manual_seed(6), dtype=dtype) * 4 - 2
+    generator = torch.Generator().manual_seed(6)
+    held = torch.rand(10, batch, 1, 3, generator=generator, dtype=dtype) * 4 - 2  # each held for 20 steps
+    wheels = held.repeat_interleave(20, dim=0) + torch.rand(200, batch, c.n_agents, 3, generator=generator, dtype=dtype)
     together = [env.step(w)[:2] for w in wheels]
+    odd = [b for b in range(batch) if DRIFTS[b % len(DRIFTS)].rewards != Rewards()]
+    assert any(rewards[b] != 0 for _, rewards in together for b in odd), "other reward values are earned"
     for b in range(batch):
         alone = ForagingEnv(c, batch_size=1, dtype=dtype)
         alone.reset(state=start.index([b]))
