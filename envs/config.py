@@ -32,9 +32,41 @@ class ConfigError(ValueError):
     """A configuration value that cannot work; the message names the field and the fix."""
 
 
+DROP_ZONES: tuple[str, ...] = ("top", "bottom", "left", "right")
+"""The arena edges a task's nest (drop zone) can lie on; the index is the state's ``drop_zone`` id."""
+
+
+@dataclass(frozen=True)
+class Rewards:
+    """The value of each reward event (docs/environment.md, Rewards); the paper's by default.
+    Any finite numbers: a step's reward is each event's count times its value, summed."""
+
+    pick_target: float = 1.0
+    """Picking up a box of the target colour."""
+    pick_other: float = -1.0
+    """Picking up a box of any other colour."""
+    deliver_target: float = 2.0
+    """Dropping a target box in the nest (a correct retrieval)."""
+    deliver_other: float = 0.0
+    """Dropping a box of another colour in the nest."""
+
+    def __post_init__(self):
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ConfigError(f"reward {f.name} must be a finite number, got {value!r}")
+            object.__setattr__(self, f.name, float(value))
+
+    def values(self) -> tuple[float, float, float, float]:
+        """The four values in the order of the state's ``rewards`` columns."""
+        return self.pick_target, self.pick_other, self.deliver_target, self.deliver_other
+
+
 @dataclass(frozen=True)
 class Task:
-    """A foraging task: the colour to fetch and the colours boxes may have this season."""
+    """A foraging task: the colour to fetch and the colours boxes may have this season, and the
+    drifts beyond the paper's (the nest's edge, the reward values, failed robots, worn motors).
+    The defaults of the drift fields are the paper's, so ``Task(3, (3, 4))`` is its red task."""
 
     target: int
     """Colour id of the boxes that earn reward."""
@@ -42,11 +74,47 @@ class Task:
     """Colour ids boxes are drawn from; must contain ``target``."""
     name: str = ""
     """Display name; defaults to the target colour's name."""
+    drop_zone: str = "top"
+    """The edge that is the nest: top (the paper's), bottom, left or right, 1 unit deep."""
+    rewards: Rewards = Rewards()
+    """The reward of each event."""
+    failed_robots: int = 0
+    """How many robots (the highest-index ones) do nothing: they neither move nor pick nor drop."""
+    motor_gain: float = 1.0
+    """Factor in (0, 1] on every robot's wheel speeds."""
 
     def __post_init__(self):
         object.__setattr__(self, "season", tuple(int(c) for c in self.season))
         if not self.name:
             object.__setattr__(self, "name", COLOR_NAMES.get(self.target, f"colour{self.target}"))
+        where = f"task {self.name!r}"
+        if isinstance(self.rewards, dict):
+            valid = [f.name for f in fields(Rewards)]
+            unknown = sorted(set(self.rewards) - set(valid))
+            if unknown:
+                raise ConfigError(f"{where}: unknown reward(s) {unknown}: valid ones are {', '.join(valid)}")
+            object.__setattr__(self, "rewards", Rewards(**self.rewards))
+        if self.drop_zone not in DROP_ZONES:
+            raise ConfigError(f"{where}: drop_zone {self.drop_zone!r} is not an edge: choose one of {', '.join(DROP_ZONES)}")
+        if not isinstance(self.rewards, Rewards):
+            raise ConfigError(f"{where}: rewards must be an envs.Rewards, got {type(self.rewards).__name__}")
+        if isinstance(self.failed_robots, bool) or not isinstance(self.failed_robots, int) or self.failed_robots < 0:
+            raise ConfigError(f"{where}: failed_robots must be an integer >= 0, got {self.failed_robots!r}")
+        gain = self.motor_gain
+        if isinstance(gain, bool) or not isinstance(gain, (int, float)) or not 0 < gain <= 1:
+            raise ConfigError(f"{where}: motor_gain must be a number in (0, 1], got {gain!r}")
+        object.__setattr__(self, "motor_gain", float(gain))
+
+    @property
+    def drop_zone_id(self) -> int:
+        """The nest edge as the state's ``drop_zone`` id (its index in ``DROP_ZONES``)."""
+        return DROP_ZONES.index(self.drop_zone)
+
+    def definition(self) -> dict:
+        """Every field but the name, as JSON values (config.json records it; resuming compares it)."""
+        return {"target": COLOR_NAMES.get(self.target, self.target),
+                "season": [COLOR_NAMES.get(c, c) for c in self.season], "drop_zone": self.drop_zone,
+                "rewards": asdict(self.rewards), "failed_robots": self.failed_robots, "motor_gain": self.motor_gain}
 
 
 TASKS: dict[str, Task] = {
@@ -175,6 +243,9 @@ class ForagingConfig:
             raise ConfigError(
                 f"task {task.name!r}: the season has no colour besides the target, but "
                 f"{self.n_boxes - n_target} boxes need one: add a colour or set rate_target=1")
+        if task.failed_robots > self.n_agents - 1:
+            raise ConfigError(f"task {task.name!r}: failed_robots={task.failed_robots}, but at least one of the "
+                              f"{self.n_agents} robots must work: use 0 to {self.n_agents - 1}")
 
     def to_dict(self) -> dict:
         return asdict(self)

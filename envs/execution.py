@@ -249,7 +249,7 @@ class StepExecution:
         the step's outputs ``(observations, rewards, done, info)``."""
         a = self._arena
         ax, ay, heading, picked, nearest, wants, rank, top_rank = self._move_and_reach(
-            wheels, a.ax, a.ay, a.heading, a.carrying, a.bx, a.by, a.present, a.done)
+            wheels, a.ax, a.ay, a.heading, a.carrying, a.bx, a.by, a.present, a.done, a.failed_robots, a.motor_gain)
         # two agents reach one cell: rare, so resolved apart from the fused phases. In place the
         # top rank is not read back: every rank an agent can have is resolved (ranks that nobody
         # holds leave every pick as it is)
@@ -258,7 +258,7 @@ class StepExecution:
             picked = self._resolve_conflicts(nearest, wants, rank, top_rank, a.bx, a.by, a.present)
         observations, reward, arena, info = self._settle_and_sense(
             ax, ay, heading, picked, a.carrying, a.bx, a.by, a.color, a.present, a.target,
-            a.steps, a.retrieved, a.done, a.respawn_key)
+            a.drop_zone, a.rewards, a.failed_robots, a.steps, a.retrieved, a.done, a.respawn_key)
         return {"ax": ax, "ay": ay, "heading": heading, **arena}, (batch_first(observations), reward, arena["done"], info)
 
     def _must_respawn(self, dropping: torch.Tensor) -> bool:

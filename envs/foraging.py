@@ -3,12 +3,17 @@
 Top to bottom it follows docs/environment.md: the robots' kinematics and actions, tasks, the
 initial state (reset), sensing and the observation, the step (move, pick, drop, rewards,
 respawn, count and end) and the respawn stream. Every environment carries its own task (target
-colour and season colours), so one call can score a population on several tasks. The step has
-no Python loop over environments or agents.
+colour, season colours, nest edge, reward values, failed robots, motor gain) as per-environment
+tensors, so one call can score a population on several tasks. The step has no Python loop over
+environments or agents.
 
-Coordinates are ``(x, y)`` with x the vertical axis: x = 0 is the top edge, where the drop zone
-is. Boxes always sit on integer cells (placement and respawn draw integers), which is what makes
-the vectorised pick resolution (``_move_and_reach``, ``_resolve_conflicts``) exact.
+Coordinates are ``(x, y)`` with x the vertical axis: x = 0 is the top edge, where the paper's
+drop zone is. Another nest edge is the paper's arena mirrored or transposed (``ZONE_FRAMES``):
+initial states and respawn cells are drawn in the paper's frame and carried over, and the drop
+test reads the distance to the nest edge (``NEST_DEPTH``), which for the top edge is ``x`` itself,
+so that the paper's task computes the very same numbers. Boxes always sit on integer cells
+(placement and respawn draw integers), which is what makes the vectorised pick resolution
+(``_move_and_reach``, ``_resolve_conflicts``) exact.
 
 Beside the rules: the state in its two layouts (``envs/state.py``), the sensing helpers
 (``envs/sensing.py``) and how the step runs, eagerly, compiled or as a CUDA graph
@@ -22,7 +27,7 @@ from dataclasses import replace
 
 import torch
 
-from .config import AGENT, WALL, ConfigError, ForagingConfig, Task
+from .config import AGENT, DROP_ZONES, WALL, ConfigError, ForagingConfig, Task
 from .execution import StepExecution
 from . import numerics
 from .sensing import OrderKeys, batch_first, distance, one_hot_rows
@@ -37,6 +42,16 @@ BOX_LOW = (6, 2)
 MIN_BOX_SPACING = 2.0
 """Initial boxes are redrawn until this far from every earlier box."""
 _HASH_MASK = 0x7FFFFFFF
+ZONE_FRAMES = ((1, 0, 0, 0, 1, 0), (-1, 0, 1, 0, 1, 0), (0, 1, 0, 1, 0, 0), (0, 1, 0, -1, 0, 1))
+"""Per nest edge (``DROP_ZONES`` order), how a cell ``(x, y)`` of the paper's frame (nest on top)
+lies in the task's arena: ``x' = a x + b y + c m``, ``y' = d x + e y + f m`` for the row
+``(a, b, c, d, e, f)``, with ``m = floor(size)``: top as it is, bottom mirrored (``m - x``), left
+transposed (``(y, x)``), right transposed and mirrored (``(y, m - x)``). Integer cells stay integer."""
+ZONE_HEADINGS = ((1, 0), (-1, 180), (-1, 90), (1, -90))
+"""Per nest edge, a heading ``h`` of the paper's frame becomes ``(s h + o) mod 360`` for ``(s, o)``."""
+NEST_DEPTH = ((1, 0, 0), (-1, 0, 1), (0, 1, 0), (0, -1, 1))
+"""Per nest edge, a robot's distance to the nest edge is ``(a x + b y) + c size`` for ``(a, b, c)``:
+``x``, ``size - x``, ``y``, ``size - y``. The robot is in the nest when it is below 1."""
 
 
 def outputs_to_wheels(outputs: torch.Tensor, config: ForagingConfig) -> torch.Tensor:
@@ -72,6 +87,11 @@ class ForagingEnv(StepExecution):
         self._cell_count = self._cells_per_row ** 2
         self._earlier_agents = torch.ones(c.n_agents, c.n_agents, dtype=torch.int32, device=self.device).tril(-1)[..., None]
         self._color_ids = torch.arange(3, 3 + c.n_colors, dtype=torch.int32, device=self.device)[:, None]
+        self._agent_ids = torch.arange(c.n_agents, dtype=torch.int32, device=self.device)[:, None]
+        mirror = math.floor(c.size)
+        self._zone_frames = torch.tensor([[a, b, c_ * mirror, d, e, f * mirror] for a, b, c_, d, e, f in ZONE_FRAMES],
+                                         dtype=torch.int32, device=self.device)
+        self._nest_depth = torch.tensor([[a, b, k * c.size] for a, b, k in NEST_DEPTH], dtype=dtype, device=self.device)
         # candidates: 4 walls (whose distances go down to -1: the spec's "- 1"), agents, boxes;
         # farther than the sensor range nothing is sensed or picked, so distances clamp above it
         self._first_agent = 4
@@ -80,8 +100,10 @@ class ForagingEnv(StepExecution):
         self._arena: Arena | None = None
 
     # ------------------------------------------------------------------ tasks and reset
-    def task_tensors(self, tasks: Task | Sequence[Task], n: int | None = None):
-        """(target (n,), season (n, n_colors)) for one task or one task per environment."""
+    def task_tensors(self, tasks: Task | Sequence[Task], n: int | None = None) -> dict[str, torch.Tensor]:
+        """The task fields of a ``ForagingState`` (``target``, ``season``, ``drop_zone``,
+        ``rewards``, ``failed_robots``, ``motor_gain``), batch first, for one task or one task per
+        environment, on the CPU (the state's floats in the environment's dtype)."""
         n = self.batch_size if n is None else n
         if isinstance(tasks, Task):
             tasks = [tasks] * n
@@ -90,32 +112,41 @@ class ForagingEnv(StepExecution):
             raise ConfigError(f"got {len(tasks)} tasks for {n} environments: give one task or one per environment")
         for task in set(tasks):
             self.config.check_task(task)
-        target = torch.tensor([t.target for t in tasks], dtype=torch.long, device=self.device)
-        season = torch.zeros(n, self.config.n_colors, dtype=torch.bool, device=self.device)
+        season = torch.zeros(n, self.config.n_colors, dtype=torch.bool)
         for i, task in enumerate(tasks):
             season[i, [color - 3 for color in task.season]] = True
-        return target, season
+        return {"target": torch.tensor([t.target for t in tasks], dtype=torch.long), "season": season,
+                "drop_zone": torch.tensor([t.drop_zone_id for t in tasks], dtype=torch.long),
+                "rewards": torch.tensor([t.rewards.values() for t in tasks], dtype=torch.float64).to(self.dtype),
+                "failed_robots": torch.tensor([t.failed_robots for t in tasks], dtype=torch.long),
+                "motor_gain": torch.tensor([t.motor_gain for t in tasks], dtype=torch.float64).to(self.dtype)}
 
     def set_tasks(self, tasks: Task | Sequence[Task]) -> None:
-        """Change the task of the running episodes (a drift); boxes keep their colours."""
+        """Change the task of running episodes (a drift); boxes keep their colours and robots
+        their places: a new nest edge applies from the next step, respawns included."""
         if self._arena is None:
             raise ConfigError("set_tasks changes running episodes: call reset first")
-        target, self._arena.season = self.task_tensors(tasks)
-        self._arena.target = target.to(torch.int32)
+        for name, value in self.task_tensors(tasks).items():
+            current = getattr(self._arena, name)
+            if self._in_place:
+                current.copy_(value)  # a captured CUDA graph reads these very buffers
+            else:  # a new tensor: the state given to reset may share the current one
+                setattr(self._arena, name, value.to(current.device, current.dtype))
 
     def sample_state(self, tasks: Task | Sequence[Task], generator: torch.Generator | int | None = None,
                      n: int | None = None) -> ForagingState:
         """Draw ``n`` (default: the batch size) initial states by the spec's reset rules."""
         generator = _as_generator(generator)
         n = self.batch_size if n is None else n
-        target, season = self.task_tensors(tasks, n)
+        task = self.task_tensors(tasks, n)
+        target = task["target"]
         c = self.config
         box_pos = self._sample_box_cells(generator, n)
         n_target = int(c.n_boxes * c.rate_target)
-        others = season.cpu().clone()
-        others[torch.arange(n), target.cpu() - 3] = False
+        others = task["season"].clone()
+        others[torch.arange(n), target - 3] = False
         colors = torch.empty(n, c.n_boxes, dtype=torch.long)
-        colors[:, :n_target] = target.cpu()[:, None]
+        colors[:, :n_target] = target[:, None]
         if n_target < c.n_boxes:
             drawn = torch.multinomial(others.double(), c.n_boxes - n_target, replacement=True, generator=generator)
             colors[:, n_target:] = drawn + 3
@@ -123,18 +154,39 @@ class ForagingEnv(StepExecution):
         u = torch.rand(n, c.n_agents, 3, generator=generator, dtype=torch.float64) * 2 - 1
         slots = torch.arange(1, c.n_agents + 1, dtype=torch.float64) * c.size / (c.n_agents + 1)
         agent_pos = torch.stack((2 + u[..., 0], slots + u[..., 1]), dim=-1)
+        heading = 180 + 10 * u[..., 2]
         key = torch.randint(0, _HASH_MASK, (n,), generator=generator)
+        agent_pos, heading, box_pos = self._to_nest_frames(task["drop_zone"], agent_pos, heading, box_pos)
         dev = self.device
         return ForagingState(
-            agent_pos=agent_pos.to(dev, self.dtype), heading=(180 + 10 * u[..., 2]).to(dev, self.dtype),
+            agent_pos=agent_pos.to(dev, self.dtype), heading=heading.to(dev, self.dtype),
             carrying=torch.full((n, c.n_agents), -1, dtype=torch.long, device=dev),
             box_pos=box_pos.to(dev, self.dtype), box_color=colors.to(dev),
             box_present=torch.ones(n, c.n_boxes, dtype=torch.bool, device=dev),
-            target=target, season=season,
+            **{name: value.to(dev) for name, value in task.items()},
             steps=torch.zeros(n, dtype=torch.long, device=dev),
             retrieved=torch.zeros(n, dtype=torch.long, device=dev),
             done=torch.zeros(n, dtype=torch.bool, device=dev),
             respawn_key=key.to(dev))
+
+    def _to_nest_frames(self, drop_zone, agent_pos, heading, box_pos):
+        """Initial positions and headings drawn in the paper's frame (float64, CPU), carried into
+        each environment's frame by its nest edge (``ZONE_FRAMES``, ``ZONE_HEADINGS``).
+        Environments with the nest on top keep the drawn values as they are."""
+        if not bool((drop_zone != 0).any()):
+            return agent_pos, heading, box_pos
+        frame = self._zone_frames.cpu()[drop_zone].double()[:, None, :]                 # (n, 1, 6)
+        turn = torch.tensor(ZONE_HEADINGS, dtype=torch.float64)[drop_zone][:, None, :]    # (n, 1, 2)
+
+        def carried(points):
+            x, y = points[..., 0], points[..., 1]
+            return torch.stack((frame[..., 0] * x + frame[..., 1] * y + frame[..., 2],
+                                frame[..., 3] * x + frame[..., 4] * y + frame[..., 5]), dim=-1)
+
+        on_top = (drop_zone == 0)[:, None]
+        return (torch.where(on_top[..., None], agent_pos, carried(agent_pos)),
+                torch.where(on_top, heading, torch.remainder(turn[..., 0] * heading + turn[..., 1], 360.0)),
+                torch.where(on_top[..., None], box_pos, carried(box_pos)))
 
     def _sample_box_cells(self, generator: torch.Generator, n: int) -> torch.Tensor:
         """Integer cells, each redrawn until ``MIN_BOX_SPACING`` from the boxes before it."""
@@ -201,7 +253,8 @@ class ForagingEnv(StepExecution):
         c, B = self.config, self.batch_size
         shapes = {"agent_pos": (B, c.n_agents, 2), "heading": (B, c.n_agents), "carrying": (B, c.n_agents),
                   "box_pos": (B, c.n_boxes, 2), "box_color": (B, c.n_boxes), "box_present": (B, c.n_boxes),
-                  "target": (B,), "season": (B, c.n_colors), "steps": (B,), "retrieved": (B,),
+                  "target": (B,), "season": (B, c.n_colors), "drop_zone": (B,), "rewards": (B, 4),
+                  "failed_robots": (B,), "motor_gain": (B,), "steps": (B,), "retrieved": (B,),
                   "done": (B,), "respawn_key": (B,)}
         for name, shape in shapes.items():
             got = tuple(getattr(state, name).shape)
@@ -209,7 +262,8 @@ class ForagingEnv(StepExecution):
                 raise ConfigError(f"state.{name} has shape {got}, expected {shape} for this config and batch")
         state = state.to(self.device)
         state = replace(state, agent_pos=state.agent_pos.to(self.dtype), heading=state.heading.to(self.dtype),
-                        box_pos=state.box_pos.to(self.dtype))
+                        box_pos=state.box_pos.to(self.dtype), rewards=state.rewards.to(self.dtype),
+                        motor_gain=state.motor_gain.to(self.dtype))
         if not torch.equal(state.box_pos, state.box_pos.round()):
             raise ConfigError("state.box_pos must hold integer cells: the spec places and respawns boxes on cells")
         if ((state.box_pos < 0) | (state.box_pos > c.size)).any():
@@ -221,6 +275,14 @@ class ForagingEnv(StepExecution):
         carried = state.carrying[state.carrying >= 0]
         if (carried >= c.n_boxes).any():
             raise ConfigError(f"state.carrying holds box indices >= n_boxes={c.n_boxes}")
+        if ((state.drop_zone < 0) | (state.drop_zone >= len(DROP_ZONES))).any():
+            raise ConfigError(f"state.drop_zone must index envs.DROP_ZONES (0 to {len(DROP_ZONES) - 1})")
+        if not state.rewards.isfinite().all():
+            raise ConfigError("state.rewards must be finite")
+        if ((state.failed_robots < 0) | (state.failed_robots >= c.n_agents)).any():
+            raise ConfigError(f"state.failed_robots must be in 0 to n_agents - 1 = {c.n_agents - 1}")
+        if not ((state.motor_gain > 0) & (state.motor_gain <= 1)).all():
+            raise ConfigError("state.motor_gain must be in (0, 1]")
         return state
 
     # ------------------------------------------------------------------ sensing
@@ -298,16 +360,17 @@ class ForagingEnv(StepExecution):
         """
         return self._run_step(wheels)
 
-    def _move_and_reach(self, wheels, ax, ay, heading, carrying, bx, by, present, done):
+    def _move_and_reach(self, wheels, ax, ay, heading, carrying, bx, by, present, done, failed_robots, motor_gain):
         """Steps 1 and 2 of the spec: the moved agents, and the box each agent picks, -1 for none,
         right unless two agents reach one cell. ``rank`` (A, B) > 0 marks agents that share their
         reachable cell with an earlier agent, ``top_rank`` is its largest value (then see
         ``_resolve_conflicts``); ``nearest`` is a valid box index throughout."""
         c = self.config
-        active = ~done
-        # kinematics in the arena frame; an ended environment stays frozen
-        velocity = self._kinematics(wheels.to(self.dtype).permute(2, 1, 0))                # (3, A, B)
-        moving = active.to(self.dtype) * c.time_step
+        # an ended environment stays frozen, and so does a failed robot
+        acting = self._working(failed_robots) & ~done
+        # kinematics in the arena frame, of the wheel speeds the worn motors give
+        velocity = self._kinematics(wheels.to(self.dtype).permute(2, 1, 0) * motor_gain)    # (3, A, B)
+        moving = acting.to(self.dtype) * c.time_step
         ax = (ax + velocity[0] * moving).clamp(0.0, c.size)
         ay = (ay + velocity[1] * moving).clamp(0.0, c.size)
         turn = torch.rad2deg(velocity[2] * (moving / WHEEL_RADIUS_FACTOR))
@@ -319,7 +382,7 @@ class ForagingEnv(StepExecution):
         nearest = (self._keys.number(nearest_key) - self._first_box).clamp(min=0, max=K - 1)
         cx, cy = bx.gather(0, nearest), by.gather(0, nearest)
         wants = ((carrying < 0) & ~self._keys.is_absent(nearest_key)
-                 & (distance(ax - cx, ay - cy) < c.sensitivity) & active).to(torch.int32)
+                 & (distance(ax - cx, ay - cy) < c.sensitivity) & acting).to(torch.int32)
         wanted_cell = ((cx * self._cells_per_row + cy).to(torch.int32) + 1) * wants - 1  # -1: wants none
         same_cell = (wanted_cell[:, None] == wanted_cell[None]).to(torch.int32)            # (A, A, B)
         rank = (same_cell * self._earlier_agents).sum(1, dtype=torch.int32) * wants
@@ -347,7 +410,7 @@ class ForagingEnv(StepExecution):
         return (chosen % K + 1) * got - 1
 
     def _settle_and_sense(self, ax, ay, heading, picked, carrying, bx, by, color, present, target,
-                          steps, retrieved, done, respawn_key):
+                          drop_zone, rewards, failed_robots, steps, retrieved, done, respawn_key):
         """Steps 3 to 5 of the spec once the picks are known: drops, rewards, respawns, the new
         observations and the termination. Returns ``(observations, rewards, changed arena
         fields, info)``."""
@@ -357,9 +420,21 @@ class ForagingEnv(StepExecution):
         present = present * (self._box_flags(picked) == 0)
         carrying = torch.maximum(picked, carrying)  # an agent picks only when it carries nothing (-1)
         is_target = color.gather(0, carrying.clamp(min=0)) == target
-        dropping = (carrying >= 0) & (ax < 1) & active
+        nest = self._nest_depth[drop_zone].T[..., None, :]                                  # (3, 1, B)
+        # the top edge's depth is (x * 1 + y * 0) + 0, exactly x: the paper's x < 1
+        in_nest = (ax * nest[0] + ay * nest[1]) + nest[2] < 1
+        dropping = (carrying >= 0) & in_nest & self._working(failed_robots) & active
         drop_correct = dropping & is_target
-        reward = ((2 * is_target - 1) * picking + 2 * drop_correct).sum(dim=0, dtype=torch.int32)
+        # event counts times each environment's values, added in a fixed order (the same bits on
+        # every CPU, eager or compiled); integer values, the paper's, are exact
+        picks_target = (picking & is_target).sum(dim=0, dtype=torch.int32)
+        delivered_target = drop_correct.sum(dim=0, dtype=torch.int32)
+        counts = (picks_target, picking.sum(dim=0, dtype=torch.int32) - picks_target,
+                  delivered_target, dropping.sum(dim=0, dtype=torch.int32) - delivered_target)
+        values = rewards.T
+        reward = counts[0] * values[0]
+        for count, value in zip(counts[1:], values[1:]):
+            reward = reward + count * value
         # (x + 1) * flag - 1 is x where flag is set and -1 elsewhere
         dropped = (carrying + 1) * dropping - 1
         carrying = (carrying + 1) * ~dropping - 1
@@ -369,16 +444,27 @@ class ForagingEnv(StepExecution):
         # with repositioning off, a dropped box is gone; _must_respawn may skip a respawn that
         # places nothing
         if c.repositioning and self._must_respawn(dropping):
-            respawn = (respawn_cells(respawn_key, steps, c.n_agents, int(c.size)) + 1) * dropping[..., None] - 1
+            cells = self._to_nest_frame(respawn_cells(respawn_key, steps, c.n_agents, int(c.size)), drop_zone)
+            respawn = (cells + 1) * dropping[..., None] - 1
             bx, by, present = self._respawn(dropped, respawn, bx, by, present)
-        retrieved = retrieved + drop_correct.sum(dim=0, dtype=torch.int32)
+        retrieved = retrieved + delivered_target
         steps = steps + active.long()
         terminated, truncated = retrieved >= c.max_retrieves, steps >= c.duration
         arena = {"carrying": carrying, "bx": bx, "by": by, "present": present, "steps": steps,
                  "retrieved": retrieved, "done": done | terminated | truncated}
         info = {"picked": picked.T.long(), "dropped": dropped.T.long(), "drop_correct": drop_correct.T,
                 "respawn_cell": respawn.transpose(0, 1).long(), "terminated": terminated, "truncated": truncated}
-        return observations, reward.to(self.dtype), arena, info
+        return observations, reward, arena, info
+
+    def _working(self, failed_robots: torch.Tensor) -> torch.Tensor:
+        """(A, B) bool: the robots that work, all but the ``failed_robots`` (B,) highest-index ones."""
+        return self._agent_ids < self.config.n_agents - failed_robots
+
+    def _to_nest_frame(self, cells: torch.Tensor, drop_zone: torch.Tensor) -> torch.Tensor:
+        """Cells ``(A, B, 2)`` int32 of the paper's frame in each environment's frame (``ZONE_FRAMES``)."""
+        frame = self._zone_frames[drop_zone].T[..., None, :]                               # (6, 1, B)
+        x, y = cells[..., 0], cells[..., 1]
+        return torch.stack(((x * frame[0] + y * frame[1]) + frame[2], (x * frame[3] + y * frame[4]) + frame[5]), dim=-1)
 
     def _kinematics(self, wheels: torch.Tensor) -> torch.Tensor:
         """``KINEMATICS @ wheels`` for wheel speeds ``(3, A, B)``, summed term by term in a fixed

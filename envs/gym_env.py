@@ -27,7 +27,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from .config import TASKS, ConfigError, ForagingConfig, Task, color_rgb, task_by_name
+from .config import DROP_ZONES, TASKS, ConfigError, ForagingConfig, Task, color_rgb, task_by_name
 from .foraging import ForagingEnv
 from .state import ForagingState
 
@@ -106,12 +106,14 @@ def _numpy(t: torch.Tensor, dtype=None) -> np.ndarray:
 # ---------------------------------------------------------------------- rendering
 def render_arena(state: ForagingState, index: int, config: ForagingConfig, scale: int = 16) -> np.ndarray:
     """An ``(H, W, 3)`` uint8 picture of environment ``index`` of ``state`` (x down, y right; the
-    drop zone x < 1 shaded at the top; agents grey disks with a heading tick and their load)."""
+    drop zone shaded along its edge; agents grey disks, failed ones dark red, with a heading tick
+    and their load)."""
     side = int(math.ceil(config.size * scale))
     img = np.full((side, side, 3), 200, dtype=np.uint8)
-    img[: int(scale)] = (170, 200, 170)                               # drop zone x < 1
     rows, cols = np.mgrid[0:side, 0:side]
     px, py = (rows + 0.5) / scale, (cols + 0.5) / scale               # pixel centres, arena units
+    depth = {"top": px, "bottom": config.size - px, "left": py, "right": config.size - py}
+    img[depth[DROP_ZONES[int(state.drop_zone[index])]] < 1] = (170, 200, 170)  # the nest, 1 unit deep
     box_pos = state.box_pos[index].cpu().numpy()
     box_color = state.box_color[index].cpu().numpy()
     present = state.box_present[index].cpu().numpy()
@@ -121,9 +123,10 @@ def render_arena(state: ForagingState, index: int, config: ForagingConfig, scale
     pos = state.agent_pos[index].cpu().double().numpy()
     heading = np.deg2rad(state.heading[index].cpu().double().numpy())
     carrying = state.carrying[index].cpu().numpy()
-    for (ax, ay), h, load in zip(pos, heading, carrying):
+    working = config.n_agents - int(state.failed_robots[index])
+    for agent, ((ax, ay), h, load) in enumerate(zip(pos, heading, carrying)):
         d2 = (px - ax) ** 2 + (py - ay) ** 2
-        img[d2 < 0.25] = (90, 90, 90)
+        img[d2 < 0.25] = (90, 90, 90) if agent < working else (120, 30, 30)
         if load >= 0:
             img[d2 < 0.04] = color_rgb(box_color[load])
         # heading 0 points to the top (x decreasing), 90 to the left (the spec's directions)

@@ -34,6 +34,15 @@ class ForagingState:
     """(B,) long: target colour id."""
     season: torch.Tensor
     """(B, n_colors) bool: colours the season may draw (index = colour - 3)."""
+    drop_zone: torch.Tensor
+    """(B,) long: the nest's edge, an index into ``envs.DROP_ZONES`` (0 top, 1 bottom, 2 left, 3 right)."""
+    rewards: torch.Tensor
+    """(B, 4) float: the reward of picking a target box, picking another, delivering a target box,
+    delivering another (``envs.Rewards.values``)."""
+    failed_robots: torch.Tensor
+    """(B,) long: how many robots, the highest-index ones, do nothing."""
+    motor_gain: torch.Tensor
+    """(B,) float: the factor on every wheel speed."""
     steps: torch.Tensor
     """(B,) long: steps taken in this episode."""
     retrieved: torch.Tensor
@@ -80,6 +89,10 @@ class Arena:
     present: torch.Tensor     # (K, B) int32 0/1
     target: torch.Tensor      # (B,) int32
     season: torch.Tensor      # (B, n_colors)
+    drop_zone: torch.Tensor   # (B,) int32
+    rewards: torch.Tensor     # (B, 4)
+    failed_robots: torch.Tensor  # (B,) int32
+    motor_gain: torch.Tensor  # (B,)
     steps: torch.Tensor       # (B,)
     retrieved: torch.Tensor   # (B,)
     done: torch.Tensor        # (B,)
@@ -93,8 +106,9 @@ class Arena:
             heading=s.heading.T.contiguous(), carrying=s.carrying.T.to(torch.int32).contiguous(),
             bx=s.box_pos[..., 0].T.contiguous(), by=s.box_pos[..., 1].T.contiguous(),
             color=s.box_color.T.to(torch.int32).contiguous(), present=s.box_present.T.to(torch.int32).contiguous(),
-            target=s.target.to(torch.int32), season=s.season, steps=s.steps, retrieved=s.retrieved, done=s.done,
-            respawn_key=s.respawn_key)
+            target=s.target.to(torch.int32), season=s.season, drop_zone=s.drop_zone.to(torch.int32),
+            rewards=s.rewards, failed_robots=s.failed_robots.to(torch.int32), motor_gain=s.motor_gain,
+            steps=s.steps, retrieved=s.retrieved, done=s.done, respawn_key=s.respawn_key)
 
     def clone(self) -> Arena:
         return Arena(**{f.name: getattr(self, f.name).clone() for f in fields(self)})
@@ -114,5 +128,7 @@ class Arena:
             agent_pos=torch.stack((self.ax.T, self.ay.T), -1), heading=self.heading.T.clone(),
             carrying=self.carrying.T.long(), box_pos=torch.stack((self.bx.T, self.by.T), -1),
             box_color=self.color.T.long(), box_present=self.present.T.bool(),
-            target=self.target.long(), season=self.season.clone(), steps=self.steps.clone(),
+            target=self.target.long(), season=self.season.clone(), drop_zone=self.drop_zone.long(),
+            rewards=self.rewards.clone(), failed_robots=self.failed_robots.long(),
+            motor_gain=self.motor_gain.clone(), steps=self.steps.clone(),
             retrieved=self.retrieved.clone(), done=self.done.clone(), respawn_key=self.respawn_key.clone())

@@ -14,6 +14,7 @@ from envs.numerics import Numerics
 from .options import flag, parse_table, parse_value, schema
 from .schedule import (MAX_GENERATIONS, ScheduleError, arena_colors, distinct_tasks, parse_schedule,
                        rehearsal_episodes, training_episodes)
+from .tasks import task_catalogue
 
 
 @dataclass(frozen=True)
@@ -26,8 +27,9 @@ class RunConfig:
     reg: float = field(default=0.0, metadata={"min": 0, "max": 1e9})
     """Regularisation strength lambda (0 = off): genetic distance for NEAT, L2/EWC for the ES."""
     schedule: str = "red-green-red"
-    """red-green-red, four-tasks, or a list like red:200,green:100,red:50; a>b:N blends task a
-    into task b over N generations (red:200,red>green:50,green:150)."""
+    """red-green-red, four-tasks, nest-relocation, robot-failure, or a list like red:200,green:100,red:50
+    of built-in tasks and those --tasks defines; a>b:N blends task a into task b over N generations
+    (red:200,red>green:50,green:150)."""
     generations: int = field(default=200, metadata={"min": 1, "max": MAX_GENERATIONS})
     """Generations per task where the schedule gives no count."""
     population: int = field(default=300, metadata={"min": 1, "max": 1_000_000})
@@ -88,6 +90,9 @@ class RunConfig:
     """Environment overrides (ForagingConfig fields); the arena colours follow the schedule."""
     algo_options: dict = field(default_factory=dict)
     """Optimiser options, e.g. sigma, learning_rate, hidden, importance, references."""
+    tasks: dict = field(default_factory=dict)
+    """Tasks defined as data, [tasks.NAME] tables (target, season, drop_zone, rewards, failed_robots,
+    motor_gain), which --schedule can name: a TOML file of them, or the tables in --config."""
 
     WRITTEN_BEFORE: ClassVar[dict[str, Any]] = {"numerics": "native"}
     """Settings a config.json written before they existed ran at, where that is not today's default."""
@@ -139,7 +144,12 @@ class RunConfig:
         return f"{self.algo}-{schedule}-reg{self.reg:g}-seed{self.seed}"
 
     def phases(self):
-        return parse_schedule(self.schedule, self.generations)
+        return parse_schedule(self.schedule, self.generations, task_catalogue(self.tasks))
+
+    def task_definitions(self) -> dict[str, dict[str, Any]]:
+        """Every task of the schedule by name, with all its fields (config.json's
+        ``task_definitions``: a built-in task's too, so that the file says what ran)."""
+        return {task.name: task.definition() for task in distinct_tasks(self.phases())}
 
     def algo_options_resolved(self) -> dict[str, Any]:
         """Every option of the algorithm, the defaults included: the options the run evolves with."""
@@ -160,7 +170,7 @@ class RunConfig:
         from algorithms import REGISTRY
 
         typed = {name: parse_value(kind, getattr(self, name), flag(name))
-                 for name, kind in schema(RunConfig).items() if name not in ("env", "algo_options")}
+                 for name, kind in schema(RunConfig).items() if name not in ("env", "algo_options", "tasks")}
         algo = typed["algo"]
         if algo not in REGISTRY:
             raise ConfigError(f"unknown algorithm {algo!r}: choose one of {', '.join(REGISTRY)}")
@@ -287,7 +297,7 @@ def require_cpp_compiler() -> None:
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:
-    """Read a run configuration file (the keys of RunConfig; [env] and [algo_options] tables)."""
+    """Read a run configuration file (the keys of RunConfig; [env], [algo_options] and [tasks.NAME] tables)."""
     try:
         with open(path, "rb") as handle:
             return tomllib.load(handle)
@@ -300,6 +310,18 @@ def load_toml(path: str | Path) -> dict[str, Any]:
                           "save it as UTF-8") from None
     except OSError as error:
         raise ConfigError(f"config file {path} cannot be read: {error.strerror}") from None
+
+
+def load_tasks(path: str | Path) -> dict[str, Any]:
+    """The ``[tasks.NAME]`` tables of a task file (``--tasks``), which holds nothing else."""
+    values = load_toml(path)
+    others = sorted(set(values) - {"tasks"})
+    if others:
+        raise ConfigError(f"task file {path} holds {others}: it may hold only [tasks.NAME] tables "
+                          "(put other settings in --config)")
+    if not values.get("tasks"):
+        raise ConfigError(f"task file {path} defines no task: write [tasks.NAME] tables")
+    return values["tasks"]
 
 
 def resolve(preset: str = "paper", file_values: dict | None = None, overrides: dict | None = None,
@@ -325,7 +347,7 @@ def merge_layers(preset: str = "paper", file_values: dict | None = None, overrid
                           (overrides or {}, "the command line")):
         RunConfig.from_dict(layer, source)  # reject unknown keys early, naming where they came from
         for key, value in layer.items():
-            if key in ("env", "algo_options"):
+            if key in ("env", "algo_options", "tasks"):  # tasks merge by name, a task's table whole
                 if not isinstance(value, dict):
                     raise ConfigError(f"{key} in {source} must be a table: write [{key}] and KEY = VALUE lines")
                 merged[key] = {**merged.get(key, {}), **value}

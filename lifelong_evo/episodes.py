@@ -24,6 +24,8 @@ class Episode:
     box_present: np.ndarray     # (T + 1, K) bool
     box_color: np.ndarray       # (K,)
     rewards: np.ndarray         # (T,)
+    drop_zone: str = "top"      # the nest's edge (envs.DROP_ZONES)
+    failed_robots: int = 0      # the highest-index robots that do nothing
 
     @property
     def total_reward(self) -> float:
@@ -57,5 +59,6 @@ def play_episodes(policy: BatchedPolicy, config: ForagingConfig, task: Task, see
             carried_color=carried[: steps + 1],
             box_pos=np.stack([s.box_pos[b].cpu().numpy() for s in traces])[: steps + 1],
             box_present=np.stack([s.box_present[b].cpu().numpy() for s in traces])[: steps + 1],
-            box_color=color, rewards=reward[:steps, b]))
+            box_color=color, rewards=reward[:steps, b], drop_zone=task.drop_zone,
+            failed_robots=task.failed_robots))
     return episodes

@@ -38,7 +38,7 @@ from .schedule import ScheduleError
 
 FIX = "restore it from a copy of the run, or run the run again"
 """The way out for a damaged file: the toolkit wrote it, so only another copy can mend it."""
-TABLES = ("env", "algo_options")
+TABLES = ("env", "algo_options", "tasks")
 """config.json's settings that are objects of options (every other one is a single value)."""
 LEVELS = ("pop", "top", "centre", "best_sample")
 """The controllers whose figures summary.json and its held-out block hold (each has some of them)."""
@@ -96,6 +96,8 @@ def check_config(values: Any, path: Path, written_beside: Iterable[str] = ()) ->
         config.phases()
     except ScheduleError as error:
         raise RunDirError(f"{path}, key 'schedule': {error}: {FIX}") from None
+    except ConfigError as error:  # a [tasks.NAME] table that defines no task
+        raise RunDirError(f"{path}, key 'tasks': {error}: {FIX}") from None
     try:
         config.env_config()
     except (ConfigError, TypeError, ValueError) as error:  # an option ForagingConfig does not have or take

@@ -47,11 +47,11 @@ from .errors import RunDirError
 from .metrics import GenerationRecord, retention_column
 from .options import flag
 from .run_files import check_config, check_controller, check_metrics, check_summary
-from .schedule import parse_schedule
+from .schedule import schedule_of
 
 RESOLVED = (("env", "env_resolved"), ("algo_options", "algo_options_resolved"))
 """config.json's settings as given, each with its resolved form written beside it."""
-RESOLVED_KEYS = ("env_resolved", "algo_options_resolved", "training_episodes", "versions")
+RESOLVED_KEYS = ("env_resolved", "algo_options_resolved", "training_episodes", "task_definitions", "versions")
 """config.json's keys that are no RunConfig field."""
 
 
@@ -407,10 +407,12 @@ class RunDir:
 
     def write_config(self, config: RunConfig) -> None:
         """config.json: every RunConfig field, the resolved environment and algorithm options
-        (defaults included), each phase's training episodes per task and the library versions."""
+        (defaults included), each phase's training episodes per task, every task's full
+        definition and the library versions."""
         write_json(self.config, {**config.to_dict(), "env_resolved": config.env_config().to_dict(),
                                  "algo_options_resolved": config.algo_options_resolved(),
-                                 "training_episodes": config.training_plan(), "versions": library_versions()})
+                                 "training_episodes": config.training_plan(),
+                                 "task_definitions": config.task_definitions(), "versions": library_versions()})
 
     def read_config(self) -> RunConfig:
         """The configuration the run was created with, checked (``run_files.check_config``)."""
@@ -453,6 +455,13 @@ class RunDir:
                                 for key in sorted(set(mine) | set(theirs)) if mine.get(key) != theirs.get(key)]
             elif _as_stored(value) != _as_stored(getattr(stored, name)):
                 differences.append(f"--{name.replace('_', '-')} {value!r} (stored: {getattr(stored, name)!r})")
+        # a task's definition can change without a setting changing (a built-in task of another
+        # version); a run written before config.json recorded them ran the paper's tasks
+        theirs = written.get("task_definitions")
+        if theirs is not None:
+            mine = _as_stored(given.task_definitions())
+            differences += [f"task {name}: {mine.get(name)!r} (stored: {theirs.get(name)!r})"
+                            for name in sorted(set(mine) | set(theirs)) if mine.get(name) != theirs.get(name)]
         return differences
 
     def first_task_differences(self, stated: dict[str, Any]) -> list[str]:
@@ -771,7 +780,7 @@ class Run:
     @property
     def finished(self) -> bool:
         """Every task of the schedule has ended (summary.json names them all)."""
-        schedule = parse_schedule(str(self.config.get("schedule")), int(self.config.get("generations", 0)))
+        schedule = schedule_of(self.config)
         return len(self.summary.get("phases", [])) == len(schedule)
 
     def metrics_rows(self) -> list[dict[str, str]]:
@@ -822,7 +831,7 @@ def configuration_of(config: dict[str, Any]) -> dict[str, Any]:
     # a setting that config.json lacks (written before the setting existed) ran at its default
     # the training plan follows from the settings beside it, which compare already
     values = {**RunConfig().to_dict(), **RunConfig.WRITTEN_BEFORE,
-              **{k: v for k, v in config.items() if k not in ("versions", "training_episodes")}}
+              **{k: v for k, v in config.items() if k not in ("versions", "training_episodes", "task_definitions")}}
     for given, resolved in RESOLVED:
         if resolved in values:
             values.pop(given, None)

@@ -8,19 +8,29 @@ task: the metrics end it, as any phase, at its last generation.
 
 Which tasks a generation trains on (``training_episodes``): its phase's task (or the blend's
 two), and with the baselines of docs/metrics.md (Baselines) also earlier tasks (rehearsal) or
-every task of the schedule (joint); always ``--evals`` episodes per controller in all."""
+every task of the schedule (joint); always ``--evals`` episodes per controller in all.
+
+A schedule names tasks from a catalogue (``lifelong_evo.tasks.task_catalogue``): the built-in
+ones and those the run defines; ``schedule_of`` reads a run directory's schedule with its own."""
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
-from envs import TASKS, Task, colors_for_tasks
+from envs import Task, colors_for_tasks
+
+from .tasks import BUILT_IN_TASKS, task_catalogue
 
 NAMED_SCHEDULES = {
     "red-green-red": ("red", "green", "red"),
     "four-tasks": ("red", "green", "purple", "cyan"),
+    "nest-relocation": ("red", "red-nest-bottom", "red"),
+    "robot-failure": ("red", "red-two-failed", "red"),
 }
-"""The paper's schedules; each task runs for ``--generations`` generations."""
+"""The paper's schedules and two drifts of another kind (the nest moves; two robots fail); each
+task runs for ``--generations`` generations."""
 MAX_GENERATIONS = 1_000_000
 """The most generations a task may run (``--generations`` or a schedule's count): 5000 times the paper's."""
 
@@ -43,20 +53,23 @@ class Phase:
         return self.task.name
 
 
-def parse_schedule(spec: str, generations: int) -> list[Phase]:
-    """``red-green-red``, ``four-tasks``, or a list such as ``red:200,red>green:50,green:150``
-    (an item without ``:N`` runs for ``generations``; ``a>b`` blends task a into task b)."""
+def parse_schedule(spec: str, generations: int, tasks: Mapping[str, Task] | None = None) -> list[Phase]:
+    """A named schedule (``NAMED_SCHEDULES``) or a list such as ``red:200,red>green:50,green:150``
+    (an item without ``:N`` runs for ``generations``; ``a>b`` blends task a into task b), its
+    tasks named in ``tasks`` (default: the built-in ones)."""
+    tasks = BUILT_IN_TASKS if tasks is None else tasks
     if spec in NAMED_SCHEDULES:
-        return [Phase(TASKS[name], generations) for name in NAMED_SCHEDULES[spec]]
+        return [Phase(tasks[name], generations) for name in NAMED_SCHEDULES[spec]]
     phases = []
     for item in spec.split(","):
         names, _, count = item.strip().partition(":")
         source, blend, name = names.rpartition(">")
         for task in (name, source) if blend else (name,):
-            if task not in TASKS:
+            if task not in tasks:
                 raise ScheduleError(
-                    f"unknown task {task!r} in schedule {spec!r}: use {', '.join(TASKS)} "
-                    f"(or a named schedule: {', '.join(NAMED_SCHEDULES)}; a>b:N blends task a into b)")
+                    f"unknown task {task!r} in schedule {spec!r}: use {', '.join(tasks)} or define it in a "
+                    f"[tasks.{task or 'NAME'}] table (--tasks FILE; or a named schedule: {', '.join(NAMED_SCHEDULES)}; "
+                    f"a>b:N blends task a into b)")
         if blend and source == name:
             raise ScheduleError(f"schedule item {item!r} blends {name} into itself: name two tasks, e.g. red>green:50")
         try:
@@ -65,8 +78,15 @@ def parse_schedule(spec: str, generations: int) -> list[Phase]:
             raise ScheduleError(f"bad generation count {count!r} in schedule item {item!r}: write e.g. red:200") from None
         if not 1 <= n <= MAX_GENERATIONS:
             raise ScheduleError(f"every task of schedule {spec!r} needs from 1 to {MAX_GENERATIONS} generations")
-        phases.append(Phase(TASKS[name], n, TASKS[source] if blend else None))
+        phases.append(Phase(tasks[name], n, tasks[source] if blend else None))
     return phases
+
+
+def schedule_of(config: Mapping[str, Any]) -> list[Phase]:
+    """The phases of a run's config.json (its ``schedule`` and ``generations``, its tasks named
+    in its ``tasks`` tables beside the built-in ones)."""
+    return parse_schedule(str(config.get("schedule")), int(config.get("generations", 0)),
+                          task_catalogue(config.get("tasks") or {}))
 
 
 def _rounded(x: float) -> int:

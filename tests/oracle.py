@@ -10,7 +10,11 @@ Implementation choices of the project that the spec leaves open and that this or
 - a box dropped in a step is absent for the whole rest of that step (no later agent can pick
   it, no sensing sees it) and lies at its respawn cell from the next step on;
 - an ended environment is frozen: it neither moves nor earns; ``steps`` counts the steps taken;
-  its observation is the sensing of the frozen arena (a box dropped in the ending step appears).
+  its observation is the sensing of the frozen arena (a box dropped in the ending step appears);
+- a step's reward is each event's count times the task's value for it, added in the order
+  pick_target, pick_other, deliver_target, deliver_other;
+- another nest edge carries the paper's cells over with ``m = floor(size)``: bottom ``(m - x, y)``,
+  left ``(y, x)``, right ``(y, m - x)``.
 
 The module also holds small helpers that convert between this oracle's per-environment state
 and the batched ``envs.ForagingState``.
@@ -35,13 +39,20 @@ def hash31(x: int) -> int:
     return (x >> 16) ^ x
 
 
-def respawn_cell(key: int, steps: int, agent: int, size: float) -> tuple[int, int]:
-    """Integer cell (x in {6..size-2}, y in {2..size-2}) for a box dropped by ``agent`` at the
-    step where the environment's step counter (before the step) is ``steps``."""
+def respawn_cell(key: int, steps: int, agent: int, size: float, drop_zone: str = "top") -> tuple[int, int]:
+    """Integer cell (x in {6..size-2}, y in {2..size-2} with the nest on top) for a box dropped by
+    ``agent`` at the step where the environment's step counter (before the step) is ``steps``."""
     base = hash31(hash31(key & MASK31) ^ steps) ^ (agent * 2)
     hx, hy = hash31(base), hash31(base ^ 1)
     high = int(size) - 1
-    return 6 + hx % (high - 6), 2 + hy % (high - 2)
+    x, y = 6 + hx % (high - 6), 2 + hy % (high - 2)
+    m = math.floor(size)
+    return {"top": (x, y), "bottom": (m - x, y), "left": (y, x), "right": (y, m - x)}[drop_zone]
+
+
+def nest_depth(config, x: float, y: float, drop_zone: str) -> float:
+    """A robot's distance to the nest's edge; it is in the nest below 1."""
+    return {"top": x, "bottom": config.size - x, "left": y, "right": config.size - y}[drop_zone]
 
 
 @dataclass
@@ -63,6 +74,10 @@ class OracleState:
     done: bool = False
     respawn_key: int = 0
     hidden: set = field(default_factory=set)  # boxes dropped in the last step: not yet sensed
+    drop_zone: str = "top"
+    rewards: tuple[float, float, float, float] = (1.0, -1.0, 2.0, 0.0)  # pick target/other, deliver target/other
+    failed_robots: int = 0       # the highest-index robots do nothing
+    motor_gain: float = 1.0
 
 
 class Oracle:
@@ -159,9 +174,10 @@ class Oracle:
             return self.last_obs, 0.0, True, events
         steps_before = s.steps
         dt = c.time_step
-        # 1. kinematics (arena frame: the heading does not rotate the motion)
-        for i in range(A_n):
-            w = wheels[i]
+        working = A_n - s.failed_robots  # robots working..A_n - 1 have failed: they do nothing
+        # 1. kinematics (arena frame: the heading does not rotate the motion) of the worn wheels
+        for i in range(working):
+            w = [speed * s.motor_gain for speed in wheels[i]]
             vx = A[0][0] * w[0] + A[0][1] * w[1] + A[0][2] * w[2]
             vy = A[1][0] * w[0] + A[1][1] * w[1] + A[1][2] * w[2]
             r = A[2][0] * w[0] + A[2][1] * w[1] + A[2][2] * w[2]
@@ -169,8 +185,8 @@ class Oracle:
             s.ay[i] = min(max(s.ay[i] + vy * dt, 0.0), c.size)
             s.heading[i] = (s.heading[i] + math.degrees(r / 12.5 * dt)) % 360.0
         # 2.-3. agents in index order: pick, then drop
-        reward = 0.0
-        for i in range(A_n):
+        count = {"pick_target": 0, "pick_other": 0, "deliver_target": 0, "deliver_other": 0}
+        for i in range(working):
             if s.carrying[i] < 0:
                 best, best_d = -1, math.inf
                 for k in range(c.n_boxes):  # nearest box in the arena, lowest index on a tie
@@ -183,31 +199,36 @@ class Oracle:
                     s.carrying[i] = best
                     s.present[best] = False  # leaves the arena at once
                     events["picked"][i] = best
-                    reward += 1.0 if s.color[best] == s.target else -1.0
-            if s.carrying[i] >= 0 and s.ax[i] < 1.0:
+                    count["pick_target" if s.color[best] == s.target else "pick_other"] += 1
+            if s.carrying[i] >= 0 and nest_depth(c, s.ax[i], s.ay[i], s.drop_zone) < 1.0:
                 k = s.carrying[i]
                 s.carrying[i] = -1
                 correct = s.color[k] == s.target
                 events["dropped"][i] = k
                 events["drop_correct"][i] = correct
+                count["deliver_target" if correct else "deliver_other"] += 1
                 if correct:
-                    reward += 2.0
                     s.retrieved += 1
                 if c.repositioning:
-                    cx, cy = respawn_cell(s.respawn_key, steps_before, i, c.size)
+                    cx, cy = respawn_cell(s.respawn_key, steps_before, i, c.size, s.drop_zone)
                     s.bx[k], s.by[k] = float(cx), float(cy)
                     s.present[k] = True
                     s.hidden.add(k)  # not sensed in this step
                     events["respawn_cell"][i] = (cx, cy)
+        reward = 0.0
+        for n, value in zip(count.values(), s.rewards):
+            reward += n * value
         s.steps += 1
         s.done = s.retrieved >= c.max_retrieves or s.steps >= c.duration
         # 4. sensing
         self.last_obs = self.observe()
         return self.last_obs, reward, s.done, events
 
-    def set_task(self, target: int, season) -> None:
-        self.s.target = int(target)
-        self.s.season = tuple(season)
+    def set_task(self, task) -> None:
+        """Take over every field of ``task`` (an ``envs.Task``)."""
+        self.s.target, self.s.season = int(task.target), tuple(task.season)
+        self.s.drop_zone, self.s.rewards = task.drop_zone, task.rewards.values()
+        self.s.failed_robots, self.s.motor_gain = task.failed_robots, task.motor_gain
         self.last_obs = self.observe()
 
 
@@ -235,7 +256,10 @@ def oracle_states_from(state) -> list[OracleState]:
             present=[bool(v) for v in state.box_present[b]],
             target=int(state.target[b]), season=season,
             steps=int(state.steps[b]), retrieved=int(state.retrieved[b]), done=bool(state.done[b]),
-            respawn_key=int(state.respawn_key[b])))
+            respawn_key=int(state.respawn_key[b]),
+            drop_zone=("top", "bottom", "left", "right")[int(state.drop_zone[b])],
+            rewards=tuple(float(v) for v in state.rewards[b]), failed_robots=int(state.failed_robots[b]),
+            motor_gain=float(state.motor_gain[b])))
     return out
 
 
@@ -259,6 +283,10 @@ def batched_state_from(states: list[OracleState], n_colors: int, dtype=None):
         box_present=torch.tensor([s.present for s in states], dtype=torch.bool),
         target=torch.tensor([s.target for s in states], dtype=torch.long),
         season=season,
+        drop_zone=torch.tensor([("top", "bottom", "left", "right").index(s.drop_zone) for s in states]),
+        rewards=torch.tensor([s.rewards for s in states], dtype=dtype),
+        failed_robots=torch.tensor([s.failed_robots for s in states], dtype=torch.long),
+        motor_gain=torch.tensor([s.motor_gain for s in states], dtype=dtype),
         steps=torch.tensor([s.steps for s in states], dtype=torch.long),
         retrieved=torch.tensor([s.retrieved for s in states], dtype=torch.long),
         done=torch.tensor([s.done for s in states], dtype=torch.bool),

@@ -12,12 +12,15 @@ from pettingzoo import ParallelEnv
 from pettingzoo.test import parallel_api_test
 
 import envs
-from envs import ENV_ID, TASKS, ConfigError, ForagingConfig, ForagingEnv
+from envs import ENV_ID, TASKS, ConfigError, ForagingConfig, ForagingEnv, Rewards, Task
 from envs.gym_env import observation_bounds, torch_seed
 
 EIGHT = {"colors": tuple(range(3, 11)), "task": "cyan"}
 SMALL = {"size": 14.0, "n_boxes": 8, "n_agents": 4, "duration": 60}   # walls and boxes are reached quickly
-OPTION_SETS = [{}, EIGHT, {"see_other_agents": True, "task": "green"}]
+DRIFT = {"task": Task(5, (5, 6), name="green-west", drop_zone="left", failed_robots=2, motor_gain=0.5,
+                       rewards=Rewards(pick_other=-2.0, deliver_other=-1.0))}
+"""A task with every drift field set (issue #61)."""
+OPTION_SETS = [{}, EIGHT, {"see_other_agents": True, "task": "green"}, DRIFT]
 
 
 def config_of(options):
@@ -36,7 +39,7 @@ def driving_actions(rng, n_envs, n_agents, v):
 
 
 # ---------------------------------------------------------------------- single Gymnasium env
-@pytest.mark.parametrize("options", OPTION_SETS, ids=["default", "8-colours", "see-agents"])
+@pytest.mark.parametrize("options", OPTION_SETS, ids=["default", "8-colours", "see-agents", "drift-task"])
 def test_check_env(options):
     env = gym.make(ENV_ID, **options)
     with warnings.catch_warnings(record=True) as caught:
@@ -131,6 +134,15 @@ def test_rgb_array_render():
     env.reset(seed=0)
     frame = env.render()
     assert frame.dtype == np.uint8 and frame.shape == (320, 320, 3)
+
+    def shaded(pixels):  # the share of the nest's colour: robots may stand in the nest
+        return (pixels == (170, 200, 170)).all(-1).mean()
+
+    assert shaded(frame[:16]) > 0.8 and shaded(frame[16:]) == 0, "the nest on top, 1 unit deep"
+    right = gym.make(ENV_ID, render_mode="rgb_array", task=Task(3, (3, 4), name="red-east", drop_zone="right"))
+    right.reset(seed=0)
+    frame = right.render()
+    assert shaded(frame[:, -16:]) > 0.8 and shaded(frame[:, :-16]) == 0, "the nest on the right"
 
 
 # ---------------------------------------------------------------------- vector env
@@ -235,7 +247,7 @@ def test_vector_determinism_and_reset_mask():
 
 
 # ---------------------------------------------------------------------- PettingZoo
-@pytest.mark.parametrize("options", [{}, EIGHT], ids=["default", "8-colours"])
+@pytest.mark.parametrize("options", [{}, EIGHT, DRIFT], ids=["default", "8-colours", "drift-task"])
 def test_parallel_api(options):
     env = envs.parallel_env(duration=60, **options)
     assert isinstance(env, ParallelEnv)
@@ -269,7 +281,10 @@ def test_parallel_rewards_flags_and_end():
 
 
 # ---------------------------------------------------------------------- observations in their spaces
-@pytest.mark.parametrize("options", [SMALL, {**SMALL, **EIGHT, "see_other_agents": True}], ids=["small", "small-8-agents"])
+@pytest.mark.parametrize("options", [SMALL, {**SMALL, **EIGHT, "see_other_agents": True},
+                                     {**SMALL, "task": Task(5, (5, 6), name="green-east", drop_zone="right",
+                                                            failed_robots=1)}],
+                         ids=["small", "small-8-agents", "small-drift-task"])
 def test_observations_stay_in_their_spaces(options):
     config = config_of(options)
     dist = slice((config.n_colors + 3) * config.n_neighbors, (config.n_colors + 4) * config.n_neighbors)

@@ -69,7 +69,9 @@ def test_reference_step_senses_what_the_env_senses():
         agent_pos=torch.stack((reference.ax.T, reference.ay.T), -1), heading=reference.heading.T,
         carrying=reference.carrying.T, box_pos=torch.stack((reference.bx.T, reference.by.T), -1),
         box_color=reference.color.T, box_present=reference.present.T, target=reference.target,
-        season=torch.tensor([[True, True, False, False]]).repeat(64, 1),
+        season=torch.tensor([[True, True, False, False]]).repeat(64, 1), drop_zone=torch.zeros(64, dtype=torch.long),
+        rewards=torch.tensor([[1.0, -1.0, 2.0, 0.0]]).repeat(64, 1), failed_robots=torch.zeros(64, dtype=torch.long),
+        motor_gain=torch.ones(64),
         steps=torch.zeros(64, dtype=torch.long), retrieved=torch.zeros(64, dtype=torch.long),
         done=torch.zeros(64, dtype=torch.bool), respawn_key=torch.zeros(64, dtype=torch.long))
     # boxes respawned onto one cell tie: the spec senses them in index order, topk in any order

@@ -2,11 +2,12 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import pytest
 import torch
 
-from envs import TASKS, ConfigError, ForagingConfig, ForagingEnv, Task, colors_for_tasks, task_by_name
+from envs import TASKS, ConfigError, ForagingConfig, ForagingEnv, Rewards, Task, colors_for_tasks, task_by_name
 
 EIGHT = tuple(range(3, 11))
 
@@ -109,6 +110,48 @@ def test_season_with_only_the_target_needs_rate_one():
     with pytest.raises(ConfigError, match="season"):
         ForagingConfig().check_task(Task(3, (3,)))
     ForagingConfig(rate_target=1.0).check_task(Task(3, (3,)))
+
+
+def test_the_drift_fields_default_to_the_papers():
+    task = Task(3, (3, 4))
+    assert (task.drop_zone, task.failed_robots, task.motor_gain) == ("top", 0, 1.0)
+    assert task.rewards.values() == (1.0, -1.0, 2.0, 0.0) and task == TASKS["red"]
+    assert Task(3, (3, 4), rewards={"deliver_target": 5}).rewards == Rewards(deliver_target=5.0)
+
+
+@pytest.mark.parametrize("fields, message", [
+    ({"drop_zone": "north"}, "drop_zone 'north' is not an edge: choose one of top, bottom, left, right"),
+    ({"rewards": {"pick_target": math.inf}}, "reward pick_target must be a finite number"),
+    ({"rewards": {"deliver_other": math.nan}}, "reward deliver_other must be a finite number"),
+    ({"rewards": {"pick_other": "1"}}, "reward pick_other must be a finite number"),
+    ({"rewards": {"bonus": 1.0}}, r"unknown reward\(s\) \['bonus'\]: valid ones are pick_target, pick_other"),
+    ({"failed_robots": -1}, "failed_robots must be an integer >= 0"),
+    ({"failed_robots": 1.5}, "failed_robots must be an integer >= 0"),
+    ({"motor_gain": 0.0}, r"motor_gain must be a number in \(0, 1\]"),
+    ({"motor_gain": 1.01}, r"motor_gain must be a number in \(0, 1\]"),
+    ({"motor_gain": math.nan}, r"motor_gain must be a number in \(0, 1\]"),
+])
+def test_bad_drift_fields_are_refused(fields, message):
+    with pytest.raises(ConfigError, match=message):
+        Task(3, (3, 4), name="bad", **fields)
+
+
+def test_failed_robots_leave_at_least_one_robot_working():
+    ForagingConfig(n_agents=5).check_task(Task(3, (3, 4), failed_robots=4))
+    with pytest.raises(ConfigError, match="failed_robots=5, but at least one of the 5 robots must work: use 0 to 4"):
+        ForagingConfig(n_agents=5).check_task(Task(3, (3, 4), failed_robots=5))
+    with pytest.raises(ConfigError, match="failed_robots"):
+        ForagingEnv(ForagingConfig(n_agents=2), 1).reset(Task(3, (3, 4), failed_robots=2), generator=0)
+
+
+def test_explicit_state_with_bad_task_fields():
+    env, state = _valid_state()
+    for name, value, message in (("drop_zone", 4, "drop_zone"), ("rewards", math.inf, "rewards"),
+                                 ("failed_robots", 5, "failed_robots"), ("motor_gain", 0.0, "motor_gain")):
+        bad = state.clone()
+        getattr(bad, name)[1] = value
+        with pytest.raises(ConfigError, match=message):
+            env.reset(state=bad)
 
 
 def test_wrong_number_of_tasks_and_missing_tasks():

@@ -3,9 +3,10 @@
 Random explicit initial states (agents anywhere, incl. on the bottom/right edges where the
 spec's ``- 1`` makes wall distances negative; boxes on integer cells, some stacked, some already
 carried or gone), mixed tasks per environment, 4- and 8-colour arenas, agent sensing and
-repositioning on and off. Actions are biased (steer to the nearest box, carry up to the drop
-zone) so that picks, wrong picks, correct and wrong drops and early ends really happen; the
-tests count them so that they cannot pass vacuously.
+repositioning on and off, and the tasks' drifts (every nest edge, other reward values, failed
+robots, worn motors) mixed in one batch. Actions are biased (steer to the nearest box, carry up
+to the drop zone) so that picks, wrong picks, correct and wrong drops and early ends really
+happen; the tests count them so that they cannot pass vacuously.
 """
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from collections import Counter
 import pytest
 import torch
 
-from envs import TASKS, ForagingConfig, ForagingEnv
+from envs import TASKS, ForagingConfig, ForagingEnv, Rewards, Task
 
 try:
     from oracle import Oracle, OracleState, batched_state_from, oracle_states_from
@@ -30,6 +31,18 @@ A_INV = ((-0.8660254100688773, 0.5000000043301269, 1.0),
 
 FOUR = (3, 4, 5, 6)
 EIGHT = tuple(range(3, 11))
+# reward values that are exact in float32 too, so that rewards compare exactly in either dtype
+ODD_REWARDS = Rewards(pick_target=0.5, pick_other=-1.5, deliver_target=3.25, deliver_other=-0.75)
+DRIFTS = (
+    TASKS["red"],
+    Task(3, (3, 4), name="red-bottom", drop_zone="bottom"),
+    Task(5, (5, 6), name="green-left", drop_zone="left", rewards=ODD_REWARDS),
+    Task(3, (3, 4), name="red-right", drop_zone="right", failed_robots=2),
+    Task(5, (5, 6), name="green-worn", motor_gain=0.625, failed_robots=1),
+    Task(3, (3, 4), name="red-everything", drop_zone="bottom", rewards=ODD_REWARDS, failed_robots=4,
+         motor_gain=0.75),
+)
+"""A task of every kind of drift, and one with all of them."""
 
 # name -> (config, tasks cycled over the batch, batch size, steps to run)
 CONFIGS = {
@@ -49,10 +62,18 @@ CONFIGS = {
     "c4_six_neighbours": (ForagingConfig(colors=FOUR, n_neighbors=6, see_other_agents=False, repositioning=True,
                                          max_retrieves=3, duration=70),
                           ("red", "green"), 30, 75),
+    "c4_drifts_mixed": (ForagingConfig(colors=FOUR, see_other_agents=True, repositioning=True,
+                                       max_retrieves=3, duration=80),
+                        DRIFTS, 72, 80),
 }
 
 
 # ---------------------------------------------------------------------------- random states
+def nest_frame(x: float, y: float, size: float, drop_zone: str) -> tuple[float, float]:
+    """A point drawn as if the nest were on top, carried to the task's edge."""
+    return {"top": (x, y), "bottom": (size - x, y), "left": (y, x), "right": (y, size - x)}[drop_zone]
+
+
 def random_state(rng: random.Random, c: ForagingConfig, task) -> OracleState:
     size, A, K = c.size, c.n_agents, c.n_boxes
     top = int(size)
@@ -93,7 +114,7 @@ def random_state(rng: random.Random, c: ForagingConfig, task) -> OracleState:
             x = rng.uniform(size - 1.6, size) if rng.random() < 0.7 else rng.uniform(0, size)
             y = rng.uniform(size - 1.6, size) if rng.random() < 0.7 else rng.uniform(0, size)
         elif u < 0.45 or (carrying[i] >= 0 and u < 0.7):  # near the drop zone
-            x, y = rng.uniform(0, 2.5), rng.uniform(0, size)
+            x, y = nest_frame(rng.uniform(0, 2.5), rng.uniform(0, size), size, task.drop_zone)
         elif u < 0.75:  # right next to a box
             k = rng.randrange(K)
             ang = rng.uniform(0, 2 * math.pi)
@@ -109,7 +130,8 @@ def random_state(rng: random.Random, c: ForagingConfig, task) -> OracleState:
         ax=ax, ay=ay, heading=heading, carrying=carrying, bx=bx, by=by, color=color, present=present,
         target=task.target, season=tuple(task.season),
         steps=rng.randint(0, 15), retrieved=rng.randint(0, c.max_retrieves - 1), done=rng.random() < 0.03,
-        respawn_key=rng.randrange(0, 2 ** 31 - 1))
+        respawn_key=rng.randrange(0, 2 ** 31 - 1), drop_zone=task.drop_zone, rewards=task.rewards.values(),
+        failed_robots=task.failed_robots, motor_gain=task.motor_gain)
 
 
 def steer(vx: float, vy: float, r: float, vmax: float) -> list[float]:
@@ -130,8 +152,10 @@ def policy(rng: random.Random, o: Oracle) -> list[list[float]]:
             wheels.append([rng.uniform(-vmax, vmax) for _ in range(3)])
             continue
         r = rng.uniform(-1, 1)
-        if s.carrying[i] >= 0:
-            wheels.append(steer(-1.6, rng.uniform(-0.5, 0.5), r, vmax))
+        if s.carrying[i] >= 0:  # to the nest, with the motors' gain made up for
+            home = {"top": (-1.6, 0.0), "bottom": (1.6, 0.0), "left": (0.0, -1.6), "right": (0.0, 1.6)}[s.drop_zone]
+            wheels.append(steer(home[0] / s.motor_gain + rng.uniform(-0.5, 0.5) * (home[0] == 0),
+                                home[1] / s.motor_gain + rng.uniform(-0.5, 0.5) * (home[1] == 0), r, vmax))
             continue
         best, best_d = None, math.inf
         for k in range(c.n_boxes):
@@ -162,7 +186,8 @@ def check_obs(got: torch.Tensor, expected: list, atol: float, c: ForagingConfig,
 def run_against_oracle(c: ForagingConfig, task_names, batch: int, n_steps: int, seed: int,
                        dtype=torch.float64, obs_atol=1e-5, device="cpu") -> Counter:
     rng = random.Random(seed)
-    tasks = [TASKS[task_names[b % len(task_names)]] for b in range(batch)]
+    tasks = [task if isinstance(task, Task) else TASKS[task] for task in task_names]
+    tasks = [tasks[b % len(tasks)] for b in range(batch)]
     states = [random_state(rng, c, t) for t in tasks]
     env = ForagingEnv(c, batch_size=batch, device=device, dtype=dtype)
     try:
@@ -209,6 +234,10 @@ def run_against_oracle(c: ForagingConfig, task_names, batch: int, n_steps: int, 
                 k = ev["dropped"][i]
                 if k >= 0:
                     stats["correct_drops" if ev["drop_correct"][i] else "wrong_drops"] += 1
+                    stats[f"drops_{o.s.drop_zone}"] += 1
+                    stats["drops_by_failed_robots"] += i >= c.n_agents - o.s.failed_robots
+                    stats["drops_at_odd_rewards"] += o.s.rewards != (1.0, -1.0, 2.0, 0.0)
+                    stats["drops_with_worn_motors"] += o.s.motor_gain < 1
             if sum(p >= 0 for p in ev["picked"]) >= 2:
                 stats["multi_pick_steps"] += 1
             for row in o_obs:  # a kept neighbour with a negative distance (the "- 1" walls)
@@ -256,6 +285,41 @@ def test_env_matches_oracle_float64(name):
     if c.max_retrieves <= 3:
         assert stats["early_ends"] >= 5, stats
     assert stats["duration_ends"] >= 5, stats
+
+
+def test_every_drift_matches_oracle_in_one_batch():
+    """``c4_drifts_mixed`` really delivers at every edge, at other reward values and with worn
+    motors, and no failed robot ever picks or drops (the oracle's failed robots do nothing)."""
+    c, tasks, batch, n_steps = CONFIGS["c4_drifts_mixed"]
+    stats = run_against_oracle(c, tasks, batch, n_steps, seed=61)
+    for zone in ("top", "bottom", "left", "right"):
+        assert stats[f"drops_{zone}"] >= 5, stats
+    assert stats["drops_at_odd_rewards"] >= 5 and stats["drops_with_worn_motors"] >= 3, stats
+    assert stats["drops_by_failed_robots"] == 0, stats
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_mixed_batch_gives_each_environment_its_numbers_alone(dtype):
+    """Every environment of a batch that mixes every kind of task gives, bit for bit, what it
+    gives in a batch of its own: the per-environment task fields never leak across the batch."""
+    c = ForagingConfig(see_other_agents=True, duration=200)
+    batch = len(DRIFTS) * 2
+    env = ForagingEnv(c, batch_size=batch, dtype=dtype)
+    env.reset([DRIFTS[b % len(DRIFTS)] for b in range(batch)], generator=5)
+    start = env.state
+    generator = torch.Generator().manual_seed(6)
+    held = torch.rand(10, batch, 1, 3, generator=generator, dtype=dtype) * 4 - 2  # each held for 20 steps
+    wheels = held.repeat_interleave(20, dim=0) + torch.rand(200, batch, c.n_agents, 3, generator=generator, dtype=dtype)
+    together = [env.step(w)[:2] for w in wheels]
+    odd = [b for b in range(batch) if DRIFTS[b % len(DRIFTS)].rewards != Rewards()]
+    assert any(rewards[b] != 0 for _, rewards in together for b in odd), "other reward values are earned"
+    for b in range(batch):
+        alone = ForagingEnv(c, batch_size=1, dtype=dtype)
+        alone.reset(state=start.index([b]))
+        for t, w in enumerate(wheels):
+            obs, reward = alone.step(w[b:b + 1])[:2]
+            assert torch.equal(obs[0], together[t][0][b]) and torch.equal(reward[0], together[t][1][b]), \
+                f"env {b} ({DRIFTS[b % len(DRIFTS)].name}), step {t}"
 
 
 @pytest.mark.parametrize("name", ["c8_agents_repos", "c4_agents_norepos_variant"])

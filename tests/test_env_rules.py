@@ -15,7 +15,7 @@ import torch
 from torch._dynamo.utils import counters
 from torch.utils._python_dispatch import TorchDispatchMode
 
-from envs import TASKS, ConfigError, ForagingConfig, ForagingEnv, Task, outputs_to_wheels
+from envs import TASKS, ConfigError, ForagingConfig, ForagingEnv, Rewards, Task, outputs_to_wheels
 from envs.foraging import _remainder, hash31, respawn_cells
 
 try:
@@ -68,7 +68,8 @@ def make_state(agents, boxes, task=TASKS["red"], steps=0, retrieved=0, done=Fals
                        bx=[float(b[0]) for b in boxes], by=[float(b[1]) for b in boxes],
                        color=[int(b[2]) for b in boxes], present=present,
                        target=task.target, season=tuple(task.season), steps=steps, retrieved=retrieved,
-                       done=done, respawn_key=key)
+                       done=done, respawn_key=key, drop_zone=task.drop_zone, rewards=task.rewards.values(),
+                       failed_robots=task.failed_robots, motor_gain=task.motor_gain)
 
 
 def make_env(agents, boxes, task=TASKS["red"], dtype=F64, steps=0, retrieved=0, done=False, key=12345, **options):
@@ -352,6 +353,117 @@ def test_drop_zone_is_x_below_one():
     assert s.box_color[0, :3].tolist() == [RED, RED, BLUE], "a respawned box keeps its colour"
 
 
+# a robot carrying a red box just inside each nest edge (depth 0.95) and one just outside (1.0);
+# for the top edge these are the scene above
+EDGE_DROPS = {
+    "top": [(0.95, 5.0), (1.0, 8.0)],
+    "bottom": [(19.05, 5.0), (19.0, 8.0)],
+    "left": [(5.0, 0.95), (8.0, 1.0)],
+    "right": [(5.0, 19.05), (8.0, 19.0)],
+}
+
+
+@pytest.mark.parametrize("edge", list(EDGE_DROPS))
+def test_drop_zone_at_each_edge_is_one_unit_deep_strictly(edge):
+    inside, outside = EDGE_DROPS[edge]
+    task = Task(RED, (RED, BLUE), name=f"red-{edge}", drop_zone=edge)
+    env, obs = make_env([(*inside, 180.0, 0), (*outside, 180.0, 1)], [(10.0, 10.0, RED), (12.0, 12.0, RED)],
+                        task=task, key=4242, steps=7)
+    obs, reward, done, info = step(env)
+    assert info["dropped"][0].tolist() == [0, -1], f"{edge}: depth 0.95 drops, depth 1.0 exactly does not"
+    assert reward.item() == 2.0 and env.state.retrieved.tolist() == [1]
+    cell = respawn_cell(4242, 7, 0, 20, edge)
+    assert info["respawn_cell"][0, 0].tolist() == list(cell) and env.state.box_pos[0, 0].tolist() == list(cell)
+    # the respawn band follows the edge: 6 to 18 cells away from the nest edge, 2 to 18 across
+    depth = {"top": cell[0], "bottom": 20 - cell[0], "left": cell[1], "right": 20 - cell[1]}[edge]
+    across = cell[1] if edge in ("top", "bottom") else cell[0]
+    assert 6 <= depth <= 18 and 2 <= across <= 18, cell
+
+
+def test_respawn_cells_of_every_edge_are_the_top_edges_carried_over():
+    """Over many drops, every edge's respawn cell is the top edge's cell mirrored or transposed
+    (``ZONE_FRAMES``), for the same key, step and robot."""
+    cells = respawn_cells(torch.arange(200) * 7919, torch.arange(200), 5, 20)
+    env = ForagingEnv(ForagingConfig(), batch_size=200)
+    x, y = cells[..., 0], cells[..., 1]
+    for index, edge in enumerate(EDGE_DROPS):
+        placed = env._to_nest_frame(cells, torch.full((200,), index, dtype=torch.int32))
+        expected = {"top": (x, y), "bottom": (20 - x, y), "left": (y, x), "right": (y, 20 - x)}[edge]
+        assert torch.equal(placed, torch.stack(expected, dim=-1)), edge
+
+
+def test_each_reward_value_is_the_tasks():
+    """One step with one event of each kind: the reward is each count times the task's value."""
+    rewards = Rewards(pick_target=0.25, pick_other=-8.0, deliver_target=64.0, deliver_other=-512.0)
+    task = Task(RED, (RED, BLUE), name="odd-rewards", rewards=rewards)
+    # robots 0 and 1 on a red and a blue box; 2 and 3 in the nest with a red and a blue box
+    agents = [(10.2, 10.0), (12.2, 12.0), (0.5, 3.0, 180.0, 2), (0.5, 6.0, 180.0, 3), (0.6, 9.0, 180.0, 4)]
+    boxes = [(10.0, 10.0, RED), (12.0, 12.0, BLUE), (14.0, 2.0, RED), (14.0, 4.0, BLUE), (14.0, 6.0, BLUE)]
+    env, obs = make_env(agents, boxes, task=task)
+    obs, reward, done, info = step(env)
+    assert info["picked"][0].tolist()[:2] == [0, 1] and info["dropped"][0].tolist()[2:] == [2, 3, 4]
+    assert reward.item() == 0.25 - 8.0 + 64.0 - 2 * 512.0
+    assert env.state.retrieved.tolist() == [1], "only a target box delivered is a retrieval"
+    paper, _ = make_env(agents, boxes)
+    assert step(paper)[1].item() == 1 - 1 + 2 + 0, "the paper's values are the default"
+
+
+def test_a_failed_robot_neither_moves_nor_picks_nor_drops_and_is_still_sensed():
+    task = Task(RED, (RED, BLUE), name="red-failed", failed_robots=2)
+    # robot 2 (working) and robots 3, 4 (failed): 4 sits on a box, 3 carries one in the nest
+    agents = [(5.0, 3.0), (5.0, 6.0), (10.2, 10.0), (0.5, 12.0, 90.0, 1), (12.1, 12.0, 45.0)]
+    boxes = [(10.0, 10.0, RED), (16.0, 16.0, RED), (12.0, 12.0, RED)]
+    env, obs = make_env(agents, boxes, task=task, see_other_agents=True)
+    before = env.state
+    obs, reward, done, info = step(env, [wheels_for(1.0, 1.0, 2.0)] * 5)
+    after = env.state
+    assert info["picked"][0].tolist() == [-1, -1, 0, -1, -1], "the failed robot 4 must not pick"
+    assert info["dropped"][0].tolist() == [-1] * 5, "the failed robot 3 must not drop"
+    assert torch.equal(after.agent_pos[0, 3:], before.agent_pos[0, 3:]) and torch.equal(after.heading[0, 3:],
+                                                                                            before.heading[0, 3:])
+    assert not torch.equal(after.agent_pos[0, :3], before.agent_pos[0, :3]), "the working robots move"
+    assert after.carrying[0].tolist() == [-1, -1, 0, 1, -1] and reward.item() == 1.0
+    # robot 2, moved to about (10.3, 10.1), senses the failed robot 4 at (12.1, 12) as a robot
+    seen = decode(obs[0, 2], env.config)
+    assert AGENT in seen["types"], seen["slots"]
+
+
+@pytest.mark.parametrize("gain", [1.0, 0.5, 0.3])
+def test_motor_gain_scales_every_wheel_speed(gain):
+    task = Task(RED, (RED, BLUE), name="worn", motor_gain=gain)
+    wheels = [1.5, -0.5, 2.0]
+    env, _ = make_env([(10.0, 10.0, 30.0)], [(3.0, 3.0, RED)], task=task)
+    step(env, [wheels])
+    worn = [w * gain for w in wheels]
+    vx = sum(A[0][j] * worn[j] for j in range(3))
+    vy = sum(A[1][j] * worn[j] for j in range(3))
+    r = sum(A[2][j] * worn[j] for j in range(3))
+    s = env.state
+    assert s.agent_pos[0, 0].tolist() == pytest.approx([10.0 + vx * 0.1, 10.0 + vy * 0.1], abs=1e-12)
+    assert s.heading[0, 0].item() == pytest.approx(30.0 + math.degrees(r / 12.5 * 0.1), abs=1e-12)
+
+
+def test_reset_for_each_nest_edge_is_the_papers_draw_mirrored_or_transposed():
+    """The same generator draws the same episode for every edge, carried into its frame: the
+    start row and the box band face the nest, the headings face away from it."""
+    env = ForagingEnv(ForagingConfig(), batch_size=8, dtype=F64)
+    top = env.sample_state(TASKS["red"], generator=3)
+    size = 20.0
+    for edge in ("bottom", "left", "right"):
+        s = env.sample_state(Task(RED, (RED, BLUE), name=f"red-{edge}", drop_zone=edge), generator=3)
+        x, y, bx, by = top.agent_pos[..., 0], top.agent_pos[..., 1], top.box_pos[..., 0], top.box_pos[..., 1]
+        frames = {"bottom": ((size - x, y), (size - bx, by), 180 - top.heading),
+                  "left": ((y, x), (by, bx), 90 - top.heading),
+                  "right": ((y, size - x), (by, size - bx), top.heading - 90)}
+        agents, boxes, heading = frames[edge]
+        assert torch.equal(s.agent_pos, torch.stack(agents, -1)) and torch.equal(s.box_pos, torch.stack(boxes, -1))
+        assert torch.allclose(s.heading, torch.remainder(heading, 360.0), atol=1e-12), edge
+        assert torch.equal(s.box_color, top.box_color) and s.drop_zone.tolist() == [("top", "bottom", "left", "right").index(edge)] * 8
+    # the paper's task is drawn as before: a task of every edge in one batch leaves the top one's
+    mixed = env.sample_state([Task(RED, (RED, BLUE), name=e, drop_zone=e) for e in EDGE_DROPS] * 2, generator=3)
+    assert torch.equal(mixed.agent_pos[0], top.agent_pos[0]) and torch.equal(mixed.heading[0], top.heading[0])
+
+
 def test_dropped_box_hidden_this_step_visible_at_its_respawn_cell_next_step():
     key, steps = 9001, 3
     cx, cy = respawn_cell(key, steps, 0, 20)
@@ -632,6 +744,26 @@ def test_set_tasks_changes_the_task_mid_episode():
     assert decode(obs[0, 0], env.config)["target"] == [0, 0, 1, 0]
     assert info["picked"][0].tolist() == [1, -1] and reward.item() == 1.0, "green is now the target"
     assert env.state.steps.tolist() == [2]
+
+
+@pytest.mark.parametrize("in_place", [False, True])
+def test_set_tasks_moves_the_nest_and_changes_rewards_and_failures_mid_episode(in_place):
+    """A carrier at the bottom edge does not deliver under the paper's task and does after a
+    drift to a bottom nest, at the new task's value; the failed robot stops at once."""
+    env, obs = make_env([(19.5, 5.0, 180.0, 0), (10.0, 3.0)], [(10.0, 10.0, RED)])
+    if in_place:
+        env.graph_step(capture=False)
+    state = env.state
+    env.reset(state=state)  # the arena may share this state's tensors
+    assert step(env)[3]["dropped"][0].tolist() == [-1, -1]
+    env.set_tasks(Task(RED, (RED, BLUE), name="red-south", drop_zone="bottom", failed_robots=1,
+                       rewards=Rewards(deliver_target=7.0)))
+    before = env.state.agent_pos[0, 1].clone()
+    obs, reward, done, info = step(env, [[0.0, 0.0, 0.0], wheels_for(1.0, 1.0)])
+    assert info["dropped"][0].tolist() == [0, -1] and reward.item() == 7.0
+    assert torch.equal(env.state.agent_pos[0, 1], before), "the failed robot 1 stays put"
+    assert state.drop_zone.tolist() == [0] and state.rewards[0].tolist() == [1.0, -1.0, 2.0, 0.0], \
+        "set_tasks must not change the state given to reset"
 
 
 # ---------------------------------------------------------------------------- helpers of the module

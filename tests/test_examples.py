@@ -23,13 +23,29 @@ SWEEPS = sorted(p.name for p in EXAMPLES.glob("sweep*.toml"))
 """Sweep files (a [grid] table over run options); every other .toml is a run configuration."""
 
 
+SMOKE_SIZED = ("robot_failure_smoke.toml",)
+"""Run configurations meant to run in seconds, at the smoke preset's size; the others are the paper's size."""
+
+
 @pytest.mark.parametrize("name", sorted(p.name for p in EXAMPLES.glob("*.toml") if p.name not in SWEEPS))
 def test_experiment_configs_resolve(name):
     config = resolve("paper", load_toml(EXAMPLES / name))
-    assert config.generations == 200 and config.population == 300 and config.evals == 10
+    size = (config.generations, config.population, config.evals)
+    assert size == ((5, 20, 2) if name in SMOKE_SIZED else (200, 300, 10))
 
 
-@pytest.mark.parametrize("name", ["paper_reg11.toml", "paper_four_tasks.toml", "es_comparison.toml"])
+def test_every_example_task_runs(tmp_path):
+    """Each task of examples/tasks.toml, one generation each, in one run."""
+    tasks = load_toml(EXAMPLES / "tasks.toml")["tasks"]
+    schedule = ",".join(f"{name}:1" for name in tasks)
+    assert main(["--tasks", str(EXAMPLES / "tasks.toml"), "--schedule", schedule, *TINY, "--out", str(tmp_path),
+                 "--name", "x"]) == 0
+    config = json.loads((tmp_path / "x/config.json").read_text())
+    assert list(config["task_definitions"]) == list(tasks) and len(tasks) >= 4
+
+
+@pytest.mark.parametrize("name", ["paper_reg11.toml", "paper_four_tasks.toml", "es_comparison.toml",
+                                  "robot_failure_smoke.toml"])
 def test_experiment_configs_run(name, tmp_path):
     assert main(["--config", str(EXAMPLES / name), *TINY, "--out", str(tmp_path), "--name", "x"]) == 0
     config = json.loads((tmp_path / "x/config.json").read_text())

@@ -99,7 +99,7 @@ from ..rundir import (
     load_runs,
     write_json,
 )
-from ..schedule import parse_schedule
+from ..schedule import schedule_of
 from .model_specific import (CRITERION, given_choices, model_specific_label, model_specific_report,
                              parse_per_seed_lambda, select_model_specific)
 from .plots import overlay_figures
@@ -434,7 +434,7 @@ def forward_transfer_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
     for run in runs:
         if run.path not in partners:
             continue
-        schedule = parse_schedule(str(run.config.get("schedule")), int(run.config.get("generations", 0)))
+        schedule = schedule_of(run.config)
         phases = [phase.name for phase in schedule]
         ended = min(len(r.summary.get("phases", [])) for r in [run, *partners[run.path]])
         areas = [forward_transfer_area(metrics(run), metrics(partner), ended) for partner in partners[run.path]]
@@ -489,7 +489,7 @@ def configurations(runs: list[Run]) -> list[Configuration]:
     transfer, sizes = forward_transfer_figures(runs), size_figures(runs)
     extra = {path: [*transfer.get(path, []), *sizes.get(path, [])] for path in {*transfer, *sizes}}
     return [Configuration(describe_config(config, configs), config, group,
-                          [p.name for p in parse_schedule(str(config.get("schedule")), int(config.get("generations", 0)))],
+                          [p.name for p in schedule_of(config)],
                           group_estimates(group, extra), seed_count(group))
             for group, config in zip(groups, configs)]
 

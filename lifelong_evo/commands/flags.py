@@ -4,8 +4,9 @@
 Every ``RunConfig`` field is a flag (``--eval-threads``), typed and documented by the field
 itself: its type and bounds parse the value (``lifelong_evo.options``), its docstring is the help
 line. A boolean field gets ``--name`` and ``--no-name``. The nested tables are the repeatable
-``--env KEY=VALUE`` and ``--option KEY=VALUE``; ``--preset`` and ``--config FILE`` add the layers
-below the flags (``config.resolve``). ``--no-memory-check`` is no run setting: it lifts the check
+``--env KEY=VALUE`` and ``--option KEY=VALUE``; ``--tasks FILE`` reads the ``[tasks.NAME]`` tables
+of a task file (as a flag, it wins over the config file's tables of the same names);
+``--preset`` and ``--config FILE`` add the layers below the flags (``config.resolve``). ``--no-memory-check`` is no run setting: it lifts the check
 that the run fits in memory (``lifelong_evo.memory``) and never changes a run's numbers. Flag
 defaults are None, so that a preset and a TOML file can sit underneath; the help shows the
 paper's defaults.
@@ -17,7 +18,7 @@ from dataclasses import fields
 
 from envs import ConfigError
 
-from ..config import PRESETS, RunConfig, configure, load_toml, merge_layers
+from ..config import PRESETS, RunConfig, configure, load_tasks, load_toml, merge_layers
 from ..errors import UserError
 from ..options import expected, field_docs, flag, parse_value, plain, schema, show, unbounded
 from ..schedule import NAMED_SCHEDULES
@@ -89,7 +90,10 @@ def add_run_options(parser: argparse.ArgumentParser, axes: bool = False) -> None
     """One flag per RunConfig field (``add_flags``), ``--env``, ``--option``, ``--preset``,
     ``--config`` and ``--memory-check``. ``axes``: the sweep's flags, where a value flag takes a
     comma-separated list and ``--preset`` defaults to the config file's."""
-    add_flags(parser, RunConfig, skip=tuple(NESTED), axes=axes, unset=True)
+    add_flags(parser, RunConfig, skip=(*NESTED, "tasks"), axes=axes, unset=True)
+    parser.add_argument("--tasks", dest="tasks_file", default=None, metavar="FILE",
+                        help="TOML file of [tasks.NAME] tables (target, season, drop_zone, rewards, failed_robots, "
+                             "motor_gain) whose names --schedule can use (docs/usage.md, Tasks)")
     parser.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
                         help="environment option, e.g. --env see_other_agents=true (repeatable; listed below)")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
@@ -125,6 +129,8 @@ def run_layers(args: argparse.Namespace) -> tuple[str, dict, dict]:
         values = parse_assignments(getattr(args, setter[2:]), setter)
         if values:
             overrides[table] = values
+    if getattr(args, "tasks_file", None):
+        overrides["tasks"] = load_tasks(args.tasks_file)
     file_values = load_toml(args.config) if args.config else {}
     return args.preset, file_values, overrides
 

@@ -14,7 +14,7 @@ from typing import Any
 
 from envs import ConfigError
 
-from ..config import PRESETS, RunConfig, load_toml, resolve
+from ..config import PRESETS, RunConfig, load_tasks, load_toml, resolve
 from ..errors import UserError
 from ..options import flag, parse_value, schema
 from ..rundir import check_run_name
@@ -227,6 +227,8 @@ def build_grid(args: argparse.Namespace) -> Grid:
         for item in getattr(args, setter[2:]):
             sub, values = _split_assignment(item, setter)
             put(f"{nested}.{sub}", values)
+    if getattr(args, "tasks_file", None):  # every trial defines the file's tasks
+        put("tasks", [load_tasks(args.tasks_file)])
     preset = args.preset or preset or "paper"
     if preset not in PRESETS:
         raise UserError(f"unknown preset {preset!r}: choose one of {', '.join(PRESETS)}")

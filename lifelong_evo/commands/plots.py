@@ -36,18 +36,41 @@ from typing import Any
 import numpy as np
 
 from algorithms import REGISTRY
-from envs import task_rgb
+from envs import color_rgb, task_rgb
 
 from ..errors import UserError
 from ..metrics import CURRENT_LEVELS, current_curve
 from ..rundir import Run, config_differences, describe_config, group_runs, load_runs, retention_columns
-from ..schedule import parse_schedule
+from ..schedule import distinct_tasks, schedule_of
 from .tables import sorted_groups
 
 
-def task_color(task: str) -> tuple[float, float, float]:
-    """A task's display colour (``envs.task_rgb``) as matplotlib wants it (0..1)."""
-    return tuple(c / 255 for c in task_rgb(task))
+TASK_STYLES = (("-", "--"), ("-.", ":"), ((0, (5, 1, 1, 1)), (0, (1, 1))))
+"""The line styles (current performance, retention) of a run's first, second, ... task of one
+target colour: tasks that share a colour (red, and red with the nest at the bottom) stay apart."""
+
+
+def _task_looks(run: Run | None) -> dict[str, tuple[int, int]]:
+    """Each task of ``run``'s schedule: its target colour id and its rank among the schedule's
+    tasks of that colour (0 for the first)."""
+    looks: dict[str, tuple[int, int]] = {}
+    if run is not None:
+        for task in distinct_tasks(schedule_of(run.config)):
+            looks[task.name] = (task.target, sum(target == task.target for target, _ in looks.values()))
+    return looks
+
+
+def task_color(task: str, run: Run | None = None) -> tuple[float, float, float]:
+    """A task's display colour, its target colour's (a task ``run`` defines, or a built-in one:
+    ``envs.task_rgb``), as matplotlib wants it (0..1)."""
+    looks = _task_looks(run)
+    return tuple(c / 255 for c in (color_rgb(looks[task][0]) if task in looks else task_rgb(task)))
+
+
+def task_styles(task: str, run: Run | None = None) -> tuple:
+    """The line styles (current, retention) of ``task`` in ``run`` (``TASK_STYLES``)."""
+    rank = _task_looks(run).get(task, (0, 0))[1]
+    return TASK_STYLES[rank % len(TASK_STYLES)]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -133,7 +156,8 @@ def mark_stability_gaps(ax, group: list[Run], level: str) -> None:
         for entry in run.summary.get("stability_gap") or []:
             if entry.get(f"min_{level}") is not None:
                 ax.plot([entry[f"generation_{level}"]], [entry[f"min_{level}"]], linestyle="none", marker=GAP_MARKER,
-                        markersize=8, color=task_color(entry["task"]), markeredgecolor="0.1", zorder=4, label=label)
+                        markersize=8, color=task_color(entry["task"], run), markeredgecolor="0.1", zorder=4,
+                        label=label)
                 label = None
 
 
@@ -159,11 +183,13 @@ def figure_retention(group: list[Run], level: str, path: Path, label: str) -> Pa
     current = "top" if level == "top" and np.isfinite(group[0].column("top")).any() else "best"
     label = {"best": "current C", "top": "top individual, current"}[current]
     fig, ax = plt.subplots(figsize=(9, 4.8), constrained_layout=True)
+    run = group[0]
     for task, (generations, values) in current_by_task(group, current).items():
-        band(ax, generations, values, task_color(task), "-", f"{task}: {label}")
+        band(ax, generations, values, task_color(task, run), task_styles(task, run)[0], f"{task}: {label}")
     for task, (generations, values) in retention_by_task(group, level).items():
         marker = "o" if len(generations) < 40 else None
-        band(ax, generations, values, task_color(task), "--", f"{task}: {what.split(' R_')[0]}", marker=marker)
+        band(ax, generations, values, task_color(task, run), task_styles(task, run)[1],
+             f"{task}: {what.split(' R_')[0]}", marker=marker)
     mark_stability_gaps(ax, group, level)
     draw_drifts(ax, group[0])
     ax.set_xlabel("generation")
@@ -204,7 +230,7 @@ def shade_phases(ax, run: Run) -> None:
     for i in range(1, len(tasks) + 1):
         if i == len(tasks) or run.metrics[i]["task_index"] != run.metrics[start]["task_index"]:
             ax.axvspan(generations[start] - 0.5, generations[i - 1] + 0.5, ymin=0, ymax=0.025,
-                       color=task_color(tasks[start]), alpha=0.8, linewidth=0)
+                       color=task_color(tasks[start], run), alpha=0.8, linewidth=0)
             start = i
 
 
@@ -409,7 +435,7 @@ def overlay_figures(paths, out: Path) -> list[Path]:
     by_schedule: dict[str, list[list[Run]]] = {}
     for group in sorted_groups(group_runs(runs)):
         config = group[0].config
-        phases = parse_schedule(str(config.get("schedule")), int(config.get("generations", 0)))
+        phases = schedule_of(config)
         by_schedule.setdefault(repr([(p.name, p.generations) for p in phases]), []).append(group)
     configs = [g[0].config for groups in by_schedule.values() for g in groups]
     written = []

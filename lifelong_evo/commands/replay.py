@@ -2,7 +2,8 @@
 
 Plays a stored controller of a run (``RUN/controllers/``: ``final`` = final-top.json, ``task0`` =
 the top individual at the end of phase 0, ``task0-red-top``, or a path to a controller .json) on
-fresh episodes of a task (default: the run's last task) in the run's arena, prints each episode's
+fresh episodes of a task (default: the run's last task; any built-in task or one the run defines)
+in the run's arena, prints each episode's
 reward and the mean, and records the episodes to ``RUN/replay-<task>.rrd`` (``replay-<controller>-
 <task>.rrd`` for another controller than ``final``; ``--no-record``: none). Episode i uses the
 environment seed S + i (default S = 1000000, away from the seeds of the run's own recordings).
@@ -13,13 +14,17 @@ import argparse
 from pathlib import Path
 
 from algorithms import policy_from_export
+<<<<<<< HEAD
 from envs import TASKS, numerics
 
+=======
+>>>>>>> tasks-as-data
 from ..config import check_device
 from ..episodes import play_episodes
 from ..errors import UserError
 from ..options import bounded
 from ..rundir import RunDir
+from ..tasks import task_catalogue
 from .flags import typed
 from .rerun_recorder import APPLICATION_ID, RerunRecorder, make_blueprint
 
@@ -39,9 +44,10 @@ def replay(run: str | Path, task_name: str | None = None, episodes: int = 5, con
     numerics.use(config.numerics)  # the arithmetic the run computed its fitness in
     phases = config.phases()
     task_name = task_name or phases[-1].name
-    if task_name not in TASKS:
-        raise UserError(f"unknown task {task_name!r}: choose one of {', '.join(TASKS)}")
-    task = TASKS[task_name]
+    tasks = task_catalogue(config.tasks)
+    if task_name not in tasks:
+        raise UserError(f"unknown task {task_name!r}: choose one of {', '.join(tasks)}")
+    task = tasks[task_name]
     env_config = config.env_config()
     env_config.check_task(task)  # ConfigError (one line) if the run's arena lacks its colours
     path, label = run_dir.find_controller(controller)
@@ -85,7 +91,8 @@ def _record(run_dir, config, label: str, task_name: str, played, seeds, controll
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", metavar="RUN", help="run directory")
-    parser.add_argument("--task", default=None, help="task to play (default: the run's last task)")
+    parser.add_argument("--task", default=None, help="task to play, a built-in one or one the run defines "
+                                                     "(default: the run's last task)")
     parser.add_argument("--episodes", type=typed(bounded(int, {"min": 1, "max": 10_000})), default=5,
                         help="episodes to play, from 1 to 10000 (default: 5)")
     parser.add_argument("--controller", default="final",

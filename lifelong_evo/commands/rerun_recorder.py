@@ -13,12 +13,13 @@ What is recorded (application id ``lifelong_evo``, recording id ``lifelong_evo/<
   ``log``                                              a text entry at each drift and task end
   (a NaN point at a drift ends the line of each series that pauses there)
 ``step`` timeline, episodes of each task end's top individual on every task seen so far, under
-``episodes/gen<G>_<phase task>/on_<task>/``: ``arena`` and ``drop_zone`` (static outlines),
-``boxes`` (present boxes in their colour, logged at the steps where they change), ``agents``
-(coloured by the box they carry, grey when empty), ``trails`` (each agent's last 20 positions)
-and ``reward`` (cumulative). These rows also carry the ``generation`` index, so the generation
-timeline shows each episode's last frame. Screen coordinates are (y, x): x is the vertical axis
-and x = 0, where the drop zone is, is the top edge (a 2D view's y axis points down).
+``episodes/gen<G>_<phase task>/on_<task>/``: ``arena`` and ``drop_zone`` (static outlines; the
+drop zone along the task's nest edge), ``boxes`` (present boxes in their colour, logged at the
+steps where they change), ``agents`` (coloured by the box they carry, grey when empty, brown when
+the task failed them), ``trails`` (each agent's last 20 positions) and ``reward`` (cumulative).
+These rows also carry the ``generation`` index, so the generation timeline shows each episode's
+last frame. Screen coordinates are (y, x): x is the vertical axis and x = 0, the paper's drop
+zone, is the top edge (a 2D view's y axis points down). A task's curves have its target colour.
 Episodes are sent column-wise (``send_columns``, one call per entity), which keeps the file
 small.
 
@@ -51,6 +52,7 @@ from ..episodes import Episode
 from ..errors import UserError
 from ..metrics import GenerationRecord
 from ..recording import Recorder
+from ..schedule import distinct_tasks
 
 APPLICATION_ID = "lifelong_evo"
 ENV_MODE = "LIFELONG_EVO_RERUN"
@@ -65,6 +67,8 @@ AGENT_RADIUS = 0.5
 BOX_RADIUS = 0.3
 ARENA_RGB = (200, 200, 200)
 DROP_ZONE_RGB = (255, 170, 60)
+FAILED_RGB = (110, 60, 20)
+"""The colour of a failed robot (it carries nothing, so no box colour is lost)."""
 FLOOR_RGB = (70, 72, 80)
 
 
@@ -149,6 +153,8 @@ class RerunRecorder(Recorder):
         self.episodes_logged: list[str] = []
         self.episode_views: list[tuple[str, str]] | None = None
         """The arena tabs of the blueprint sent at the start (None: no update at close)."""
+        self.task_colors: dict[str, tuple[int, int, int]] = {}
+        """The display colour of each task of the run, by name (``for_run`` fills it)."""
 
     @classmethod
     def for_run(cls, run_dir, config, resume: bool) -> "RerunRecorder":
@@ -158,7 +164,12 @@ class RerunRecorder(Recorder):
         recorder = cls(path, recording_id=f"{APPLICATION_ID}/{name}", recording_name=name,
                        arena_size=config.env_config().size, blueprint=make_blueprint(expected), mode=sink_mode())
         recorder.episode_views = expected
+        recorder.task_colors = {task.name: color_rgb(task.target) for task in distinct_tasks(config.phases())}
         return recorder
+
+    def task_rgb(self, task: str) -> tuple[int, int, int]:
+        """A task's display colour: its target colour's (``envs.task_rgb`` for a task the run does not name)."""
+        return self.task_colors.get(task) or task_rgb(task)
 
     # -- stream ---------------------------------------------------------------------------------
 
@@ -224,7 +235,7 @@ class RerunRecorder(Recorder):
         if generation == 0 and record.generation_in_task == 0:
             self.text(generation, f"run {self.recording_name}: task {task} from generation 0. "
                                   "Episodes play on the 'step' timeline (pick it in the time panel).")
-        color = task_rgb(task)
+        color = self.task_rgb(task)
         light = tuple(int(c + (255 - c) * 0.45) for c in color)
         for kind, stats, label in (("current", record.fitness, ""), ("regularised", record.regularised, " regularised")):
             self._scalar(generation, f"curves/{kind}/{task}/best", stats.best, color, f"{task}{label} best", 2.0)
@@ -236,7 +247,7 @@ class RerunRecorder(Recorder):
             self._scalar(generation, "curves/species", len(record.species_sizes), (220, 220, 220), "species", 1.5)
         for other, kept in record.retention.items():
             for level, width in (("pop", 2.0), ("top", 1.5), ("centre", 1.0)):
-                self._scalar(generation, f"curves/retention_{level}/{other}", getattr(kept, level), task_rgb(other),
+                self._scalar(generation, f"curves/retention_{level}/{other}", getattr(kept, level), self.task_rgb(other),
                              f"{other} retention ({level})", width)
         for name, value in record.diagnostics.items():
             self._scalar(generation, f"curves/extra/{name}", value, (200, 200, 200), name, 1.0)
@@ -274,13 +285,13 @@ class RerunRecorder(Recorder):
         size = self.arena_size
         corners = np.array([[0, 0], [size, 0], [size, size], [0, size], [0, 0]], dtype=np.float32)
         stream.log(f"{path}/arena", rr.LineStrips2D([corners], colors=[ARENA_RGB], radii=[0.08]), static=True)
-        zone = np.array([[0, 0], [size, 0], [size, 1], [0, 1], [0, 0]], dtype=np.float32)
-        stream.log(f"{path}/drop_zone", rr.LineStrips2D([zone], colors=[DROP_ZONE_RGB], radii=[0.06],
-                                                         labels=["drop zone"]), static=True)
+        stream.log(f"{path}/drop_zone", rr.LineStrips2D([drop_zone_outline(episode.drop_zone, size)],
+                                                         colors=[DROP_ZONE_RGB], radii=[0.06],
+                                                         labels=[f"drop zone ({episode.drop_zone})"]), static=True)
         stream.log(f"{path}/agents", rr.Points2D.from_fields(radii=[AGENT_RADIUS]), static=True)
         stream.log(f"{path}/boxes", rr.Points2D.from_fields(radii=[BOX_RADIUS]), static=True)
         stream.log(f"{path}/trails", rr.LineStrips2D.from_fields(radii=[0.05]), static=True)
-        stream.log(f"{path}/reward", rr.SeriesLines(colors=[task_rgb(episode.task)],
+        stream.log(f"{path}/reward", rr.SeriesLines(colors=[color_rgb(episode.target)],
                                                     names=[f"{path.split('/', 1)[1]} reward"]), static=True)
 
         steps, agents = episode.agent_pos.shape[:2]
@@ -295,7 +306,9 @@ class RerunRecorder(Recorder):
         all_steps = np.arange(steps)
         carried = episode.carried_color
         palette = _palette()
-        agent_colors = palette[np.clip(carried, 0, len(palette) - 1)].reshape(-1, 3)
+        agent_colors = palette[np.clip(carried, 0, len(palette) - 1)]
+        agent_colors[:, agents - episode.failed_robots:] = FAILED_RGB
+        agent_colors = agent_colors.reshape(-1, 3)
         stream.send_columns(f"{path}/agents", indexes=indexes(all_steps),
                             columns=rr.Points2D.columns(positions=screen.reshape(-1, 2),
                                                         colors=agent_colors).partition([agents] * steps))
@@ -337,6 +350,13 @@ class RerunRecorder(Recorder):
             self._stream.flush()
             self._stream.disconnect()
             self._stream = None
+
+
+def drop_zone_outline(drop_zone: str, size: float) -> np.ndarray:
+    """The outline of the nest, 1 unit deep along its edge, in screen coordinates ``(y, x)``."""
+    x0, x1, y0, y1 = {"top": (0, 1, 0, size), "bottom": (size - 1, size, 0, size),
+                      "left": (0, size, 0, 1), "right": (0, size, size - 1, size)}[drop_zone]
+    return np.array([[y0, x0], [y1, x0], [y1, x1], [y0, x1], [y0, x0]], dtype=np.float32)
 
 
 def _palette() -> np.ndarray:

@@ -1,0 +1,67 @@
+"""Tasks by name: the built-in ones and those a run defines as data, ``[tasks.NAME]`` tables (a
+``--tasks FILE`` or a ``--config`` file), each parsed into an ``envs.Task``.
+
+A table holds ``target`` (a colour name), ``season`` (a list of colour names) and, optionally,
+the drift fields of ``envs.Task``: ``drop_zone``, ``rewards`` (a table of event values),
+``failed_robots`` and ``motor_gain`` (docs/environment.md, Tasks). A defined task can be used in
+``--schedule`` by its name, as a built-in one. A built-in name cannot be defined again: a run's
+``red`` is always the paper's red. Every error is a ``ConfigError`` naming the task and the fix.
+"""
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from typing import Any
+
+from envs import COLOR_IDS, TASKS, ConfigError, Task
+
+BUILT_IN_TASKS: dict[str, Task] = {
+    **TASKS,
+    "red-nest-bottom": Task(3, (3, 4), name="red-nest-bottom", drop_zone="bottom"),
+    "red-two-failed": Task(3, (3, 4), name="red-two-failed", failed_robots=2),
+}
+"""The paper's tasks (``envs.TASKS``) and the drifts of the named schedules ``nest-relocation``
+(the nest moves to the bottom edge) and ``robot-failure`` (robots 3 and 4 of 5 stop working)."""
+TASK_KEYS = ("target", "season", "drop_zone", "rewards", "failed_robots", "motor_gain")
+"""The keys of a ``[tasks.NAME]`` table; ``target`` and ``season`` are required."""
+TASK_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
+"""A task name: it appears in schedules (beside ``,``, ``:`` and ``>``) and in file names."""
+
+
+def _colour(task: str, key: str, name: Any) -> int:
+    if not isinstance(name, str) or name not in COLOR_IDS:
+        raise ConfigError(f"task {task!r}: {key} {name!r} is no colour: use one of {', '.join(COLOR_IDS)}")
+    return COLOR_IDS[name]
+
+
+def define_task(name: str, table: Any) -> Task:
+    """The ``envs.Task`` a ``[tasks.NAME]`` table defines (ConfigError, naming it, otherwise)."""
+    if not isinstance(name, str) or not TASK_NAME.fullmatch(name):
+        raise ConfigError(f"task name {name!r} is not a name a schedule can hold: use letters, digits, - and _")
+    if name in BUILT_IN_TASKS:
+        raise ConfigError(f"task {name!r} is built in and cannot be defined again: give your task another name, "
+                          f"e.g. {name}-2")
+    if not isinstance(table, Mapping):
+        raise ConfigError(f"task {name!r} must be a table: write [tasks.{name}] and KEY = VALUE lines")
+    unknown = sorted(set(table) - set(TASK_KEYS))
+    if unknown:
+        raise ConfigError(f"task {name!r}: unknown key(s) {unknown}: valid ones are {', '.join(TASK_KEYS)}")
+    missing = [key for key in ("target", "season") if key not in table]
+    if missing:
+        raise ConfigError(f"task {name!r} needs {' and '.join(missing)}: e.g. target = \"red\", "
+                          f"season = [\"red\", \"blue\"]")
+    season = table["season"]
+    if not isinstance(season, (list, tuple)) or not season:
+        raise ConfigError(f"task {name!r}: season must be a list of colour names, e.g. [\"red\", \"blue\"]")
+    fields = {key: table[key] for key in TASK_KEYS[2:] if key in table}
+    return Task(_colour(name, "target", table["target"]), tuple(_colour(name, "season", c) for c in season),
+                name=name, **fields)
+
+
+def task_catalogue(tables: Mapping[str, Any] | None = None) -> dict[str, Task]:
+    """Every task a run can name: the built-in ones and those ``tables`` (``{NAME: table}``) define."""
+    if tables is None:
+        return dict(BUILT_IN_TASKS)
+    if not isinstance(tables, Mapping):
+        raise ConfigError("tasks must be a table of tables: write [tasks.NAME] and KEY = VALUE lines")
+    return {**BUILT_IN_TASKS, **{name: define_task(name, table) for name, table in tables.items()}}
