@@ -14,11 +14,8 @@ import argparse
 from pathlib import Path
 
 from algorithms import policy_from_export
-<<<<<<< HEAD
-from envs import TASKS, numerics
+from envs import numerics
 
-=======
->>>>>>> tasks-as-data
 from ..config import check_device
 from ..episodes import play_episodes
 from ..errors import UserError
