@@ -2,7 +2,9 @@
 built-in controllers give the same bits eagerly and compiled, at any batch size, and under every
 ATen dispatch this CPU offers (the scalar one of a CPU without AVX2, AVX2, AVX-512), so that a
 run's fitness depends on its seed and settings alone. Each check compares whole tensors bit for
-bit; torch's own ``sqrt``, ``sin``, ``sigmoid`` and matrix products fail them."""
+bit; torch's own ``sqrt``, ``sin``, ``sigmoid`` and matrix products fail them. The step eagerly
+against compiled, bit for bit, is ``tests/test_paper_tasks_identical.py``'s (one stored digest for
+both), and whole runs under every speed setting ``tests/test_same_numbers_anywhere.py``'s."""
 from __future__ import annotations
 
 import json
@@ -15,9 +17,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from algorithms import make_optimizer
-from envs import TASKS, ForagingConfig, ForagingEnv, numerics, outputs_to_wheels
-from lifelong_evo.evaluate import sample_episodes
+from envs import numerics
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -55,24 +55,6 @@ def test_a_grid_product_is_exact_in_any_order():
     reversed_terms = numerics.exact_bmm(x.flip(-1), numerics.grid_weights(w.flip(1)))
     assert torch.equal(got, reversed_terms)
     assert torch.allclose(got.double(), torch.bmm(x.double(), w.double()), atol=1e-4)
-
-
-def test_the_step_is_the_same_eager_and_compiled():
-    """Every observation and reward of 40 steps, from one state, with one NEAT population's
-    actions: eagerly and compiled (torch's sqrt and sin differ between the two in the last bit)."""
-    config = ForagingConfig()
-    batch = 60
-    episodes = sample_episodes(config, [TASKS["red"]], batch, torch.Generator().manual_seed(4))
-    eager, compiled = ForagingEnv(config, batch_size=batch), ForagingEnv(config, batch_size=batch)
-    compiled.compile()
-    policy = make_optimizer("neat", obs_dim=config.obs_dim, population_size=batch // 10, seed=5).ask()
-    seen_eager, seen_compiled = eager.reset(state=episodes), compiled.reset(state=episodes)
-    for step in range(40):
-        wheels = outputs_to_wheels(policy(seen_eager.view(batch // 10, 10, config.n_agents, -1)), config)
-        seen_eager, reward_eager, _, _ = eager.step(wheels.view(batch, config.n_agents, 3))
-        seen_compiled, reward_compiled, _, _ = compiled.step(wheels.view(batch, config.n_agents, 3))
-        assert torch.equal(seen_eager, seen_compiled), f"step {step}"
-        assert torch.equal(reward_eager, reward_compiled), f"step {step}"
 
 
 FITNESS = """
