@@ -368,9 +368,12 @@ class ForagingEnv(StepExecution):
         c = self.config
         # an ended environment stays frozen, and so does a failed robot
         acting = self._working(failed_robots) & ~done
-        # kinematics in the arena frame, of the wheel speeds the worn motors give
-        velocity = self._kinematics(wheels.to(self.dtype).permute(2, 1, 0) * motor_gain)    # (3, A, B)
-        moving = acting.to(self.dtype) * c.time_step
+        # kinematics in the arena frame; the worn motors' gain scales the motion (the kinematics
+        # are linear, so this is the gain on every wheel speed): applied to the time step, not to
+        # the wheels, it leaves native arithmetic's small matrix product fused into the compiled
+        # step, and at the paper's gain of 1 it changes no bit
+        velocity = self._kinematics(wheels.to(self.dtype).permute(2, 1, 0))                # (3, A, B)
+        moving = acting.to(self.dtype) * (motor_gain * c.time_step)
         ax = (ax + velocity[0] * moving).clamp(0.0, c.size)
         ay = (ay + velocity[1] * moving).clamp(0.0, c.size)
         turn = torch.rad2deg(velocity[2] * (moving / WHEEL_RADIUS_FACTOR))
