@@ -29,3 +29,39 @@ def test_every_reader_handles_a_defined_task(tmp_path, capsys):
     assert drop_zone_outline("bottom", 20.0).tolist() == [[0, 19], [20, 19], [20, 20], [0, 20], [0, 19]]
     assert drop_zone_outline("left", 20.0).tolist() == [[0, 0], [1, 0], [1, 20], [0, 20], [0, 0]]
     assert drop_zone_outline("right", 20.0).tolist() == [[19, 0], [20, 0], [20, 20], [19, 20], [19, 0]]
+
+
+def test_the_recording_draws_failed_robots_and_the_nest_where_the_task_puts_them(tmp_path):
+    """An episode of a task with two failed robots and the nest at the bottom: in the recording
+    robots 3 and 4 have the failed colour at every step, the working ones their carried box's
+    colour, and the drop zone's outline lies along the bottom edge."""
+    import dataclasses
+
+    from lifelong_evo.commands.rerun_recorder import FAILED_RGB, RerunRecorder, _palette
+    from tests.test_recording import read_rrd, rerun_chunk, small_episode
+
+    episode = small_episode("red")
+    carried = episode.carried_color.copy()
+    carried[:, 0] = 3  # robot 0 carries a red box throughout
+    episode = dataclasses.replace(episode, carried_color=carried, failed_robots=2, drop_zone="bottom")
+    path = tmp_path / "episode.rrd"
+    recorder = RerunRecorder(path, recording_id="failed", recording_name="failed", arena_size=20.0)
+    recorder.log_episode_at("episodes/worn", episode, generation=1)
+    recorder.close()
+
+    def rgb(packed: int) -> tuple[int, int, int]:
+        return packed >> 24, (packed >> 16) & 255, (packed >> 8) & 255
+
+    agents = read_rrd(path)["episodes/worn/agents"]
+    assert len(agents) == len(episode.agent_pos)
+    palette = _palette()
+    for row in agents:
+        colors = [rgb(c) for c in row["Points2D:colors"]]
+        assert colors[3:] == [tuple(FAILED_RGB)] * 2
+        assert colors[0] == tuple(palette[3]) and colors[1] == colors[2] == tuple(palette[0])
+        assert tuple(FAILED_RGB) not in colors[:3]
+    outlines = [row for chunk in rerun_chunk.RrdReader(path).stream().to_chunks()
+                if chunk.is_static and chunk.entity_path.lstrip("/") == "episodes/worn/drop_zone"
+                for row in chunk.to_record_batch().to_pylist()]
+    assert outlines[0]["LineStrips2D:strips"] == [[[0, 19], [20, 19], [20, 20], [0, 20], [0, 19]]]
+    assert outlines[0]["LineStrips2D:labels"] == ["drop zone (bottom)"]
