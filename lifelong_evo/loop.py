@@ -5,7 +5,9 @@ tell, record; a checkpoint at intervals and at every task end.
 The baselines of docs/metrics.md change only what a generation trains on
 (``schedule.training_episodes``: rehearsal, joint, blends), when the regulariser takes its
 reference (``reference_every``) and whether the optimiser starts afresh at a task end
-(``from_scratch``). The stability gap's scores of earlier tasks, in the first ``gap_window``
+(``from_scratch``); the skill archive (``archive``) keeps each task's top controller at its end
+and puts it back into the population (``Optimizer.adopt``) at the start of a phase whose task
+returns, so a checkpoint holds it. The stability gap's scores of earlier tasks, in the first ``gap_window``
 generations after a switch, are played on episodes of their own, so that they never change the
 run's training numbers.
 
@@ -61,6 +63,8 @@ class LoopState:
     """Every exported controller's held-out score on every task (``held_out.score_controllers``)."""
     first_task_from: str = ""
     """The run whose first task this one took over (``start_from``), if any."""
+    archive: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """The skill archive (``archive``): each finished task's top controller at its latest end, by task."""
     wall_time_s: float = 0.0
     machines: list[dict[str, Any]] = field(default_factory=list)
     """The machines the run's generations ran on (``rundir.machine``), each with the generation from
@@ -179,7 +183,7 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
         gap = stability_gap(read_metrics(run_dir.metrics), phase_names, config.gap_window) if config.gap_window else None
         return summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s, centre is not None,
                          state.held_out, config.held_out_episodes, state.first_task_from, stability_gap=gap,
-                         machines=state.machines, numerics=config.numerics)
+                         machines=state.machines, numerics=config.numerics, archive=config.archive)
 
     try:
         for generation, phase_index, in_task in _generations(phases, start=state.generation):
@@ -200,6 +204,8 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
             else:
                 others = []
 
+            if in_task == 0 and phase.name in state.archive:  # the task returns: its archived controller back
+                optimizer.adopt(state.archive[phase.name])
             with update_threads(config.threads, config.eval_threads):
                 policy = optimizer.ask()
             fitness = yield Evaluation(policy, env_config, [task for task, _ in training] + others,
@@ -257,6 +263,8 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
                 state.held_out.update(score_controllers(
                     {controller_key(phase_index, phase.name, kind): controller for kind, controller in exports.items()},
                     env_config, tasks, config.held_out_episodes))
+                if config.archive:
+                    state.archive[phase.name] = exports["top"]
             # the regulariser's reference: at each task end, or boundary-free every reference_every generations
             if (generation + 1) % config.reference_every == 0 if config.reference_every else last:
                 optimizer.end_task()
@@ -367,7 +375,7 @@ def _checkpoint_payload(config, optimizer, generator, state) -> dict[str, Any]:
     return {"config": config.to_dict(), "optimizer": optimizer.state_dict(), "generator": generator.get_state(),
             "loop": {"generation": state.generation, "phase_ends": state.phase_ends, "initial": state.initial,
                      "held_out": state.held_out, "first_task_from": state.first_task_from,
-                     "wall_time_s": state.wall_time_s, "machines": state.machines}}
+                     "wall_time_s": state.wall_time_s, "machines": state.machines, "archive": state.archive}}
 
 
 def check_start_from(config: RunConfig, run_dir: RunDir, source: RunDir) -> None:
@@ -419,15 +427,18 @@ def _take_first_task(config: RunConfig, run_dir: RunDir, source: RunDir,
     species rows, controllers, a checkpoint of this run's configuration at the task's end) and load
     that state."""
     payload, controllers = first_task
+    top = controllers[controller_key(0, config.phases()[0].name, "top")]
+    # the archive as this run keeps it at that end, whether or not the source kept one
     own = {**payload, "config": config.to_dict(),
-           "loop": {**payload["loop"], "first_task_from": str(source.path.resolve())}}
+           "loop": {**payload["loop"], "first_task_from": str(source.path.resolve()),
+                    "archive": {config.phases()[0].name: top} if config.archive else {}}}
     state = _load_state(own, optimizer, generator)
     for log in ("metrics", "species"):
         if getattr(source, log).is_file():
             shutil.copyfile(getattr(source, log), getattr(run_dir, log))  # GenerationLog cuts it to the task
     for name, exported in controllers.items():
         run_dir.write_controller(name, exported)
-    run_dir.write_controller("final-top", controllers[controller_key(0, config.phases()[0].name, "top")])
+    run_dir.write_controller("final-top", top)
     run_dir.save_checkpoint(state.generation, own)
     run_dir.save_first_task_end(own)
     return state
@@ -438,10 +449,11 @@ def _load_state(payload: dict[str, Any], optimizer, generator) -> LoopState:
     optimizer.load_state_dict(payload["optimizer"])
     generator.set_state(payload["generator"])
     loop = payload["loop"]
-    # a checkpoint written before held-out scoring (or the machines' record) existed has none
+    # a checkpoint written before held-out scoring (or the machines' record, or the archive) existed has none
     return LoopState(generation=loop["generation"], phase_ends=loop["phase_ends"], initial=loop["initial"],
                      held_out=loop.get("held_out", {}), first_task_from=loop.get("first_task_from", ""),
-                     wall_time_s=loop["wall_time_s"], machines=loop.get("machines", []))
+                     wall_time_s=loop["wall_time_s"], machines=loop.get("machines", []),
+                     archive=loop.get("archive", {}))
 
 
 def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopState:
