@@ -43,6 +43,7 @@ from .evaluate import Evaluation, evaluate, evaluate_together, update_threads
 from .held_out import score_controllers
 from .metrics import (INITIAL, FitnessStats, GenerationRecord, Retention, controller_key, retention, stability_gap,
                       summarise)
+from .networks import network_view, reference_name
 from .progress import Progress
 from .recording import Recorder
 from .rundir import GenerationLog, MetricsLayout, ResumeError, RunDir, RunDirError, machine, read_metrics
@@ -265,6 +266,8 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
                     env_config, tasks, config.held_out_episodes))
                 if config.archive:
                     state.archive[phase.name] = exports["top"]
+                if recorder.wants_episodes:
+                    _record_network(config, run_dir, recorder, exports["top"], generation, phase_names, phase_index)
             # the regulariser's reference: at each task end, or boundary-free every reference_every generations
             if (generation + 1) % config.reference_every == 0 if config.reference_every else last:
                 optimizer.end_task()
@@ -369,6 +372,16 @@ def _record_episodes(config, recorder, exported, tasks, generation, phase_index,
     for task in tasks:
         episode = play_episodes(policy, env_config, task, [seed], config.device)[0]
         recorder.log_episode(generation, phase_index, name, task, episode)
+
+
+def _record_network(config, run_dir, recorder, exported, generation, phase_names, phase_index) -> None:
+    """The task end's top controller as a network against its reference (``networks``), read from
+    controllers/ as ``plot`` reads it (none where it is missing)."""
+    name = reference_name(config.to_dict(), phase_names, phase_index)
+    path = run_dir.controllers / f"{name}.json"
+    reference = run_dir.read_controller(path) if name and path.is_file() else None
+    recorder.log_network(generation, network_view(controller_key(phase_index, phase_names[phase_index], "top"),
+                                                  exported, name, reference))
 
 
 def _checkpoint_payload(config, optimizer, generator, state) -> dict[str, Any]:
