@@ -7,7 +7,7 @@ The baselines of docs/metrics.md change only what a generation trains on
 reference (``reference_every``) and whether the optimiser starts afresh at a task end
 (``from_scratch``); the skill archive (``archive``) keeps each task's top controller at its end
 and puts it back into the population (``Optimizer.adopt``) at the start of a phase whose task
-returns, so a checkpoint holds it. The stability gap's scores of earlier tasks, in the first ``gap_window``
+returns after another one, so a checkpoint holds it. The stability gap's scores of earlier tasks, in the first ``gap_window``
 generations after a switch, are played on episodes of their own, so that they never change the
 run's training numbers.
 
@@ -205,7 +205,8 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
             else:
                 others = []
 
-            if in_task == 0 and phase.name in state.archive:  # the task returns: its archived controller back
+            returns = in_task == 0 and phase_index > 0 and phase_names[phase_index - 1] != phase.name
+            if returns and phase.name in state.archive:  # the task returns: its archived controller back
                 optimizer.adopt(state.archive[phase.name])
             with update_threads(config.threads, config.eval_threads):
                 policy = optimizer.ask()

@@ -95,8 +95,8 @@ def test_adopt_goes_between_tell_and_ask():
 
 @pytest.fixture(scope="module")
 def adopted(tmp_path_factory):
-    """Per algorithm, a run with --archive on red, green, red, green, red (one generation each) and
-    every adopt the loop made: the controller, and the population's size before and after."""
+    """Per algorithm, a run with --archive on red, green, red, red, green, red (one generation each)
+    and every adopt the loop made: the controller, and the population's size before and after."""
     out = tmp_path_factory.mktemp("archive")
     calls: dict[str, list] = {}
     with pytest.MonkeyPatch.context() as patch:
@@ -112,21 +112,21 @@ def adopted(tmp_path_factory):
                 calls.setdefault(algo, []).append((self.generation, exported, size, self.population_size, played))
 
             patch.setattr(cls, "adopt", spy)
-            assert main(["--algo", algo, *COMMON, "--schedule", "red:1,green:1,red:1,green:1,red:1", "--archive",
+            assert main(["--algo", algo, *COMMON, "--schedule", "red:1,green:1,red:1,red:1,green:1,red:1", "--archive",
                          "--out", str(out), "--name", algo]) == 0
     return out, calls
 
 
 @pytest.mark.parametrize("algo", ["neat", "sep-cmaes"])
 def test_a_returning_task_gets_its_own_archived_controller(adopted, algo):
-    """At the start of each phase whose task appeared before, the loop puts back that task's top
-    controller of its latest end (not another task's, not an older one), the population keeps its
-    size, and the population played holds the controller."""
+    """At the start of each phase whose task returns after another, the loop puts back that task's
+    top controller of its latest end (not another task's, not an older one; nothing where a task
+    goes on), the population keeps its size, and the population played holds the controller."""
     out, calls = adopted
     stored = {name: json.loads((out / algo / "controllers" / f"{name}.json").read_text())
-              for name in ("task0-red-top", "task1-green-top", "task2-red-top")}
+              for name in ("task0-red-top", "task1-green-top", "task3-red-top")}
     assert [(generation, exported) for generation, exported, *_ in calls[algo]] == \
-        [(2, stored["task0-red-top"]), (3, stored["task1-green-top"]), (4, stored["task2-red-top"])]
+        [(2, stored["task0-red-top"]), (4, stored["task1-green-top"]), (5, stored["task3-red-top"])]
     for _, exported, before, after, played in calls[algo]:
         assert before == after
         if algo == "neat":
@@ -141,8 +141,8 @@ def test_the_held_out_block_scores_the_archive(adopted):
     out, _ = adopted
     held_out = json.loads((out / "neat/summary.json").read_text())["held_out"]
     assert held_out["archive"] == {
-        "red": {"controller": "task4-red-top", "score": held_out["scores"]["task4-red-top"]["red"]},
-        "green": {"controller": "task3-green-top", "score": held_out["scores"]["task3-green-top"]["green"]}}
+        "red": {"controller": "task5-red-top", "score": held_out["scores"]["task5-red-top"]["red"]},
+        "green": {"controller": "task4-green-top", "score": held_out["scores"]["task4-green-top"]["green"]}}
     assert held_out["archive_mean"] == (held_out["archive"]["red"]["score"] + held_out["archive"]["green"]["score"]) / 2
 
 
