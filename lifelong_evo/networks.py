@@ -23,6 +23,8 @@ from typing import Any
 import torch
 
 from algorithms.mlp import unflatten
+from algorithms.neat.config import build_neat_config
+from algorithms.neat.export import genome_from_export
 
 from .metrics import controller_key
 
@@ -99,9 +101,6 @@ def network_view(name: str, exported: dict[str, Any], reference_of: str | None =
 
 def _neat_view(name: str, exported: dict[str, Any], reference_of: str | None,
                reference: dict[str, Any] | None) -> NetworkView:
-    from algorithms.neat.config import build_neat_config
-    from algorithms.neat.export import genome_from_export
-
     links = [c for c in exported["genome"]["connections"] if c["enabled"]]
     kept = {(c["in"], c["out"]) for c in reference["genome"]["connections"] if c["enabled"]} if reference else set()
     outputs = range(exported["num_outputs"])
