@@ -7,9 +7,9 @@ The baselines of docs/metrics.md change only what a generation trains on
 reference (``reference_every``) and whether the optimiser starts afresh at a task end
 (``from_scratch``); the skill archive (``archive``) keeps each task's top controller at its end
 and puts it back into the population (``Optimizer.adopt``) at the start of a phase whose task
-returns after another one, so a checkpoint holds it. The stability gap's scores of earlier tasks, in the first ``gap_window``
-generations after a switch, are played on episodes of their own, so that they never change the
-run's training numbers.
+returns after another one, so a checkpoint holds it. The stability gap's scores of earlier
+tasks, in the first ``gap_window`` generations after a switch, are played on episodes of their
+own, so that they never change the run's training numbers.
 
 A run continues bit for bit from a checkpoint (``--resume``): everything random comes from the
 optimiser's state and the run's one torch generator, both checkpointed; recorded episodes draw

@@ -285,7 +285,8 @@ class NeatOptimizer(Optimizer):
         check_export(exported, self.obs_dim)
         for key in ("genetics", "unconnected_outputs"):
             if exported.get(key) != getattr(self, key):
-                raise ValueError(f"the controller has {key} {exported.get(key)!r}, this optimiser {getattr(self, key)!r}")
+                raise ValueError(f"the controller has {key} {exported.get(key)!r}, "
+                                 f"this optimiser {getattr(self, key)!r}")
         victim = min(self.population.values(), key=lambda g: (-math.inf if g.fitness is None else g.fitness, -g.key))
         genome = genome_from_export({**exported, "genome_key": next(self.reproduction.genome_indexer)}, self.config)
         del self.population[victim.key]

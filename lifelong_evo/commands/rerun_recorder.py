@@ -180,8 +180,8 @@ class RerunRecorder(Recorder):
         path = run_dir.recording_path(resume)
         expected = expected_episode_paths(config)
         recorder = cls(path, recording_id=f"{APPLICATION_ID}/{name}", recording_name=name,
-                       arena_size=config.env_config().size, blueprint=make_blueprint(expected, graph=config.algo == "neat"),
-                       mode=sink_mode())
+                       arena_size=config.env_config().size, mode=sink_mode(),
+                       blueprint=make_blueprint(expected, graph=config.algo == "neat"))
         recorder.graph = config.algo == "neat"
         recorder.episode_views = expected
         recorder.task_colors = {task.name: color_rgb(task.target) for task in distinct_tasks(config.phases())}
