@@ -8,6 +8,7 @@ One generation of the lifelong loop is::
     report = optimiser.tell(raw, regularised)      # selection uses `regularised`
     ...
     optimiser.end_task()                           # at a drift: take the regulariser's reference
+    optimiser.adopt(exported)                      # optional: put an exported controller back (the skill archive)
 
 Optimisers know nothing about environments, Rerun or files: they see observations and fitness
 tensors only. Their options (the keyword arguments beyond the common ones) are declared once, as
@@ -162,3 +163,15 @@ class Optimizer(ABC):
     def export(self, index: int) -> dict[str, Any]:
         """Controller ``index`` of the last asked population as a JSON-serialisable dict (safe to
         share: never a pickle) that ``algorithms.policy_from_export`` turns back into a policy."""
+
+    def adopt(self, exported: dict[str, Any]) -> None:
+        """Put a controller this optimiser exported earlier (``export``) back into the population
+        that the next ``ask`` returns, without changing the population's size (the skill archive,
+        ``--archive``); called between a ``tell`` and the next ``ask``. Optional: an optimiser
+        without it cannot run with an archive (``can_adopt``)."""
+        raise NotImplementedError(f"{self.name} cannot take back an exported controller (no adopt)")
+
+    @classmethod
+    def can_adopt(cls) -> bool:
+        """Whether this optimiser implements ``adopt``."""
+        return cls.adopt is not Optimizer.adopt

@@ -84,6 +84,9 @@ class CMAES(ESOptimizer):
     def centre(self) -> torch.Tensor:
         return self.searcher.m
 
+    def _move_centre(self, centre):
+        self.searcher.m = centre
+
     def _sample(self):
         zs, ys, xs = self.searcher.sample_distribution()
         self._asked = (zs, ys, xs)

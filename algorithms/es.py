@@ -30,7 +30,7 @@ from evotorch import Problem
 from evotorch.optimizers import ClipUp, TorchOptimizer
 
 from .base import GenerationReport, Optimizer, OptimizerOptions
-from .mlp import MLPPolicy, layer_sizes_for, n_parameters
+from .mlp import MLPPolicy, check_export, layer_sizes_for, n_parameters
 from .regularizers import Importance, Reference, Regularizer
 
 STATE_FORMAT = 1
@@ -170,6 +170,10 @@ class ESOptimizer(Optimizer):
         """The search distribution's current centre (1-D)."""
         raise NotImplementedError
 
+    def _move_centre(self, centre: torch.Tensor) -> None:
+        """Make ``centre`` the search distribution's centre, leaving everything else as it is."""
+        raise NotImplementedError
+
     def search_variance(self) -> torch.Tensor | None:
         """Per-coordinate variance for the EWC importance (CMA-ES); ``None``: use the Fisher diagonal."""
         return None
@@ -224,6 +228,19 @@ class ESOptimizer(Optimizer):
 
     def end_task(self) -> None:
         self.regularizer.end_task(self.centre, self.search_variance())
+
+    def adopt(self, exported: dict[str, Any]) -> None:
+        """Move the search distribution's centre to the exported controller (``export``); its
+        spread (step size, variances or covariance, CMA-ES's evolution paths) and the centre
+        optimiser's state stay as they are. The next ``ask`` samples around it and returns it as
+        the centre."""
+        if self._pending:
+            raise RuntimeError("adopt() goes between tell() and the next ask()")
+        check_export(exported, self.layer_sizes[0])
+        if list(exported["layer_sizes"]) != list(self.layer_sizes):
+            raise ValueError(f"the controller has layer sizes {exported['layer_sizes']}, this optimiser "
+                             f"{list(self.layer_sizes)}")
+        self._move_centre(torch.tensor(exported["parameters"], dtype=torch.float32, device=self.device))
 
     def export(self, index: int) -> dict[str, Any]:
         if self._population is None:
@@ -315,6 +332,9 @@ class GaussianES(ESOptimizer):
     @property
     def centre(self) -> torch.Tensor:
         return self.searcher._distribution.mu
+
+    def _move_centre(self, centre):
+        self.searcher._distribution = self.searcher._distribution.modified_copy(mu=centre)
 
     def _sample(self) -> torch.Tensor:
         out = torch.empty(self.n_samples, self.n_parameters, dtype=torch.float32, device=self.device)

@@ -83,6 +83,10 @@ class RunConfig:
     reference_every: int = field(default=0, metadata={"min": 0, "max": MAX_GENERATIONS})
     """Take the regulariser's reference every this many generations instead of at task ends (0):
     a rule that needs no task boundary, for schedules with blends (a>b:N)."""
+    archive: bool = False
+    """Skill archive: keep each task's top controller at its end, and put it back into the
+    population when the task returns (NEAT: in place of the worst genome; an ES: as the centre);
+    composes with lambda and every baseline (docs/algorithms.md, The skill archive)."""
     gap_window: int = field(default=20, metadata={"min": 0, "max": MAX_GENERATIONS})
     """Stability gap: score every earlier task in each of the first this many generations after a
     switch, on episodes of their own (0: off; docs/metrics.md)."""
@@ -105,13 +109,14 @@ class RunConfig:
     a resumed run keeps them."""
     OUTPUT_SETTINGS: ClassVar[tuple[str, ...]] = ("record", "episodes_every", "gap_window")
     """What a run records besides its numbers, which they never change: a resumed run may change them."""
-    BASELINE_SETTINGS: ClassVar[tuple[str, ...]] = ("rehearsal", "joint", "from_scratch", "reference_every")
+    BASELINE_SETTINGS: ClassVar[tuple[str, ...]] = ("rehearsal", "joint", "from_scratch", "reference_every", "archive")
     """The continual-learning baselines and the boundary-free reference (docs/metrics.md,
     Baselines): each is off at its default, and a run with all of them off (and lambda 0) is
     fine-tuning."""
-    AFTER_FIRST_TASK_SETTINGS: ClassVar[tuple[str, ...]] = ("reg", "rehearsal", "from_scratch")
+    AFTER_FIRST_TASK_SETTINGS: ClassVar[tuple[str, ...]] = ("reg", "rehearsal", "from_scratch", "archive")
     """Settings that act only at or after the first task's end (the regulariser takes its first
-    reference there; rehearsal has no earlier task before it; from scratch starts afresh there):
+    reference there; rehearsal has no earlier task before it; from scratch starts afresh there;
+    the archive puts a controller back only when a task returns):
     runs that differ only in them share their first task, number for number (``--start-from``,
     ``sweep --share-first-task``; the run that takes it over does at its end what it does)."""
 
@@ -182,6 +187,9 @@ class RunConfig:
                                                   f"{listed_by} --algo {algo}"))
         if config.reg and not optimizer.has_regularizer:
             raise ConfigError(f"algorithm {algo!r} has no regulariser: drop --reg")
+        if config.archive and not optimizer.can_adopt():
+            raise ConfigError(f"--archive: algorithm {algo!r} cannot take a controller back (it has no "
+                              "Optimizer.adopt): drop --archive")
         if config.cuda_graphs and not config.device.startswith("cuda"):
             raise ConfigError(f"--cuda-graphs needs --device cuda, not {config.device!r}: drop --cuda-graphs "
                               "or run on a GPU")

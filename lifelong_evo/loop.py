@@ -5,9 +5,11 @@ tell, record; a checkpoint at intervals and at every task end.
 The baselines of docs/metrics.md change only what a generation trains on
 (``schedule.training_episodes``: rehearsal, joint, blends), when the regulariser takes its
 reference (``reference_every``) and whether the optimiser starts afresh at a task end
-(``from_scratch``). The stability gap's scores of earlier tasks, in the first ``gap_window``
-generations after a switch, are played on episodes of their own, so that they never change the
-run's training numbers.
+(``from_scratch``); the skill archive (``archive``) keeps each task's top controller at its end
+and puts it back into the population (``Optimizer.adopt``) at the start of a phase whose task
+returns after another one, so a checkpoint holds it. The stability gap's scores of earlier
+tasks, in the first ``gap_window`` generations after a switch, are played on episodes of their
+own, so that they never change the run's training numbers.
 
 A run continues bit for bit from a checkpoint (``--resume``): everything random comes from the
 optimiser's state and the run's one torch generator, both checkpointed; recorded episodes draw
@@ -41,6 +43,7 @@ from .evaluate import Evaluation, evaluate, evaluate_together, update_threads
 from .held_out import score_controllers
 from .metrics import (INITIAL, FitnessStats, GenerationRecord, Retention, controller_key, retention, stability_gap,
                       summarise)
+from .networks import network_view, reference_name
 from .progress import Progress
 from .recording import Recorder
 from .rundir import GenerationLog, MetricsLayout, ResumeError, RunDir, RunDirError, machine, read_metrics
@@ -61,6 +64,8 @@ class LoopState:
     """Every exported controller's held-out score on every task (``held_out.score_controllers``)."""
     first_task_from: str = ""
     """The run whose first task this one took over (``start_from``), if any."""
+    archive: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """The skill archive (``archive``): each finished task's top controller at its latest end, by task."""
     wall_time_s: float = 0.0
     machines: list[dict[str, Any]] = field(default_factory=list)
     """The machines the run's generations ran on (``rundir.machine``), each with the generation from
@@ -179,7 +184,7 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
         gap = stability_gap(read_metrics(run_dir.metrics), phase_names, config.gap_window) if config.gap_window else None
         return summarise(phase_names, state.phase_ends, state.initial, state.wall_time_s, centre is not None,
                          state.held_out, config.held_out_episodes, state.first_task_from, stability_gap=gap,
-                         machines=state.machines, numerics=config.numerics)
+                         machines=state.machines, numerics=config.numerics, archive=config.archive)
 
     try:
         for generation, phase_index, in_task in _generations(phases, start=state.generation):
@@ -200,6 +205,9 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
             else:
                 others = []
 
+            returns = in_task == 0 and phase_index > 0 and phase_names[phase_index - 1] != phase.name
+            if returns and phase.name in state.archive:  # the task returns: its archived controller back
+                optimizer.adopt(state.archive[phase.name])
             with update_threads(config.threads, config.eval_threads):
                 policy = optimizer.ask()
             fitness = yield Evaluation(policy, env_config, [task for task, _ in training] + others,
@@ -257,6 +265,10 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
                 state.held_out.update(score_controllers(
                     {controller_key(phase_index, phase.name, kind): controller for kind, controller in exports.items()},
                     env_config, tasks, config.held_out_episodes))
+                if config.archive:
+                    state.archive[phase.name] = exports["top"]
+                if recorder.wants_episodes:
+                    _record_network(config, run_dir, recorder, exports["top"], generation, phase_names, phase_index)
             # the regulariser's reference: at each task end, or boundary-free every reference_every generations
             if (generation + 1) % config.reference_every == 0 if config.reference_every else last:
                 optimizer.end_task()
@@ -363,11 +375,21 @@ def _record_episodes(config, recorder, exported, tasks, generation, phase_index,
         recorder.log_episode(generation, phase_index, name, task, episode)
 
 
+def _record_network(config, run_dir, recorder, exported, generation, phase_names, phase_index) -> None:
+    """The task end's top controller as a network against its reference (``networks``), read from
+    controllers/ as ``plot`` reads it (none where it is missing)."""
+    name = reference_name(config.to_dict(), phase_names, phase_index)
+    path = run_dir.controllers / f"{name}.json"
+    reference = run_dir.read_controller(path) if name and path.is_file() else None
+    recorder.log_network(generation, network_view(controller_key(phase_index, phase_names[phase_index], "top"),
+                                                  exported, name, reference))
+
+
 def _checkpoint_payload(config, optimizer, generator, state) -> dict[str, Any]:
     return {"config": config.to_dict(), "optimizer": optimizer.state_dict(), "generator": generator.get_state(),
             "loop": {"generation": state.generation, "phase_ends": state.phase_ends, "initial": state.initial,
                      "held_out": state.held_out, "first_task_from": state.first_task_from,
-                     "wall_time_s": state.wall_time_s, "machines": state.machines}}
+                     "wall_time_s": state.wall_time_s, "machines": state.machines, "archive": state.archive}}
 
 
 def check_start_from(config: RunConfig, run_dir: RunDir, source: RunDir) -> None:
@@ -419,15 +441,18 @@ def _take_first_task(config: RunConfig, run_dir: RunDir, source: RunDir,
     species rows, controllers, a checkpoint of this run's configuration at the task's end) and load
     that state."""
     payload, controllers = first_task
+    top = controllers[controller_key(0, config.phases()[0].name, "top")]
+    # the archive as this run keeps it at that end, whether or not the source kept one
     own = {**payload, "config": config.to_dict(),
-           "loop": {**payload["loop"], "first_task_from": str(source.path.resolve())}}
+           "loop": {**payload["loop"], "first_task_from": str(source.path.resolve()),
+                    "archive": {config.phases()[0].name: top} if config.archive else {}}}
     state = _load_state(own, optimizer, generator)
     for log in ("metrics", "species"):
         if getattr(source, log).is_file():
             shutil.copyfile(getattr(source, log), getattr(run_dir, log))  # GenerationLog cuts it to the task
     for name, exported in controllers.items():
         run_dir.write_controller(name, exported)
-    run_dir.write_controller("final-top", controllers[controller_key(0, config.phases()[0].name, "top")])
+    run_dir.write_controller("final-top", top)
     run_dir.save_checkpoint(state.generation, own)
     run_dir.save_first_task_end(own)
     return state
@@ -438,10 +463,11 @@ def _load_state(payload: dict[str, Any], optimizer, generator) -> LoopState:
     optimizer.load_state_dict(payload["optimizer"])
     generator.set_state(payload["generator"])
     loop = payload["loop"]
-    # a checkpoint written before held-out scoring (or the machines' record) existed has none
+    # a checkpoint written before held-out scoring (or the machines' record, or the archive) existed has none
     return LoopState(generation=loop["generation"], phase_ends=loop["phase_ends"], initial=loop["initial"],
                      held_out=loop.get("held_out", {}), first_task_from=loop.get("first_task_from", ""),
-                     wall_time_s=loop["wall_time_s"], machines=loop.get("machines", []))
+                     wall_time_s=loop["wall_time_s"], machines=loop.get("machines", []),
+                     archive=loop.get("archive", {}))
 
 
 def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopState:

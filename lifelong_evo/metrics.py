@@ -108,13 +108,15 @@ def summarise(phase_names: list[str], phase_ends: list[dict[str, Any]], initial:
               wall_time_s: float, has_centre: bool, held_out: dict[str, dict[str, float]] | None = None,
               held_out_episodes: int | None = None, first_task_from: str = "", *,
               stability_gap: list[dict[str, Any]] | None = None,
-              machines: list[dict[str, Any]] | None = None, numerics: str | None = None) -> dict[str, Any]:
+              machines: list[dict[str, Any]] | None = None, numerics: str | None = None,
+              archive: bool = False) -> dict[str, Any]:
     """summary.json from the task-end records (``loop.LoopState.phase_ends``), the generation-0
     scores and, where given, the exported controllers' held-out scores (``held_out_summary``);
     ``first_task_from``: the run whose first task this one took over (the wall time counts it);
     ``stability_gap``: the entries of ``stability_gap``, written as they are (None: no such key);
     ``machines``: where the generations ran (``loop.LoopState.machines``), written as they are;
-    ``numerics``: the arithmetic of the fitness (``RunConfig.numerics``)."""
+    ``numerics``: the arithmetic of the fitness (``RunConfig.numerics``); ``archive``: the run
+    keeps a skill archive (``RunConfig.archive``), which the held-out block scores."""
     summary: dict[str, Any] = {"phases": phase_names[:len(phase_ends)], "wall_time_s": wall_time_s,
                                **({"machines": machines} if machines else {}),
                                **({"numerics": numerics} if numerics else {}),
@@ -142,7 +144,7 @@ def summarise(phase_names: list[str], phase_ends: list[dict[str, Any]], initial:
     if stability_gap is not None:
         summary["stability_gap"] = stability_gap
     if held_out:
-        summary["held_out"] = held_out_summary(phase_names, held_out, held_out_episodes)
+        summary["held_out"] = held_out_summary(phase_names, held_out, held_out_episodes, archive)
     return summary
 
 
@@ -179,14 +181,17 @@ def _controller_order(key: str) -> tuple[int, int]:
     return -1 if phase is None else phase, list(HELD_OUT_LEVELS).index(kind)
 
 
-def held_out_summary(phase_names: list[str], scores: dict[str, dict[str, float]], episodes: int) -> dict[str, Any]:
+def held_out_summary(phase_names: list[str], scores: dict[str, dict[str, float]], episodes: int,
+                     archive: bool = False) -> dict[str, Any]:
     """summary.json's ``held_out`` block from the held-out scores of the exported controllers
     (``{"task<i>-<task>-<kind>": {task: score}}``, ``"initial-<kind>"`` for generation 0): the
     scores themselves, then per kind of controller (top; for an ES also centre and best sample)
     its C per finished phase, a forgetting row per earlier task at each later task end (C, R and
     F of that kind, as the training rows define them) and, once every phase has ended, the R
     matrix and ACC/BWT/FWT (FWT's baseline: the generation-0 controller of that kind, where it
-    was scored)."""
+    was scored). ``archive`` (a run with a skill archive): the archived controllers, each task's
+    top controller at its latest finished end, with their scores on their own task
+    (``archive``) and the mean of those scores over the tasks (``archive_mean``)."""
     finished = 0
     while finished < len(phase_names) and controller_key(finished, phase_names[finished], "top") in scores:
         finished += 1
@@ -217,6 +222,11 @@ def held_out_summary(phase_names: list[str], scores: dict[str, dict[str, float]]
             initial = scores.get(controller_key(None, None, kind))
             transfer = _transfer(matrix, [initial[name] for name in phase_names] if initial else None, level)
             block.update(transfer)
+    if archive and finished:
+        latest = {name: i for i, name in enumerate(phase_names[:finished])}  # each task's last finished phase
+        block["archive"] = {name: {"controller": controller_key(i, name, "top"),
+                                   "score": scores[controller_key(i, name, "top")][name]} for name, i in latest.items()}
+        block["archive_mean"] = sum(kept["score"] for kept in block["archive"].values()) / len(latest)
     return block
 
 

@@ -30,6 +30,10 @@ def summaries(sweep: Path, algo: str) -> list[dict]:
     return [json.loads((run / "summary.json").read_text()) for run in sorted((sweep / algo).iterdir())]
 
 
+ENDS = ("task0-red", "task1-green", "task2-red")
+"""The task ends of the paper's schedule, each with a network figure."""
+
+
 def test_plot_writes_every_figure_kind(sweep, tmp_path, capsys):
     out = tmp_path / "figures"
     assert cli_main(["plot", str(sweep), "--out", str(out)]) == 0
@@ -38,7 +42,9 @@ def test_plot_writes_every_figure_kind(sweep, tmp_path, capsys):
         "neat-red-green-red-reg1-retention-pop.png", "neat-red-green-red-reg1-retention-top.png",
         "neat-red-green-red-reg1-species.png", "neat-red-green-red-reg1-lifespans-seed1.png",
         "neat-red-green-red-reg1-lifespans-seed2.png",
-        "openai-es-red-green-red-reg0-retention-pop.png", "openai-es-red-green-red-reg0-retention-top.png"])
+        *(f"neat-red-green-red-reg1-network-{end}-seed{seed}.png" for end in ENDS for seed in (1, 2)),
+        "openai-es-red-green-red-reg0-retention-pop.png", "openai-es-red-green-red-reg0-retention-top.png",
+        *(f"openai-es-red-green-red-reg0-network-{end}.png" for end in ENDS)])
     for path in out.iterdir():
         data = path.read_bytes()
         assert data.startswith(PNG) and len(data) > 10_000, path.name
@@ -283,7 +289,7 @@ def test_runs_from_before_the_diagnostics_columns(sweep, tmp_path):
             writer.writeheader()
             writer.writerows(rows)
     assert cli_main(["plot", str(old / "neat"), "--out", str(tmp_path / "figures")]) == 0
-    assert len(list((tmp_path / "figures").glob("*.png"))) == 5
+    assert len(list((tmp_path / "figures").glob("*.png"))) == 5 + 2 * len(ENDS)
     assert cli_main(["compare", str(old), "--out", str(tmp_path / "cmp")]) == 0
     assert (tmp_path / "cmp" / "comparison.md").is_file()
     assert not (tmp_path / "cmp" / "comparison-diagnostics.png").exists()

@@ -51,11 +51,14 @@ def test_a_run_started_from_another_lambda_gives_its_own_numbers(tmp_path, algo)
 
 @pytest.mark.parametrize("algo", ["neat", "sep-cmaes"])
 @pytest.mark.parametrize("source, baseline", [([], ["--rehearsal", "0.5", "--reg", "2"]), ([], ["--from-scratch"]),
-                                              (["--from-scratch"], ["--reg", "2"])])
+                                              (["--from-scratch"], ["--reg", "2"]), ([], ["--archive"]),
+                                              (["--archive"], ["--from-scratch"])])
 def test_a_baseline_run_started_from_another_gives_its_own_numbers(tmp_path, algo, source, baseline):
-    """Rehearsal has nothing to rehearse before the first task's end and from scratch starts afresh
-    at it: such a run takes over another's first task (a from-scratch source keeps that end as it
-    was reached, before starting afresh) and repeats its numbers from scratch, resumed included."""
+    """Rehearsal has nothing to rehearse before the first task's end, from scratch starts afresh
+    at it and the archive puts a controller back only when a task returns: such a run takes over
+    another's first task (a from-scratch source keeps that end as it was reached, before starting
+    afresh; an archive holds that task's top controller whether the source kept one or not) and
+    repeats its numbers from scratch, resumed included."""
     def run(*argv):
         assert main(["--algo", algo, *COMMON, "--out", str(tmp_path), *argv]) == 0
 

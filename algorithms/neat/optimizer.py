@@ -41,6 +41,7 @@ from neat.reporting import ReporterSet
 from ..base import GenerationReport, Optimizer, OptimizerOptions
 from . import state as neat_state
 from .config import CONFIG_FILE, build_neat_config, minimum_population
+from .export import check_export, genome_from_export
 from .genetics import DEFAULT_GENETICS, Genetics
 from .network import NEAT_SIGMOID_SLOPE, CompiledPopulation, UnconnectedOutputs, compile_genomes, genome_layers
 
@@ -269,6 +270,36 @@ class NeatOptimizer(Optimizer):
         if self.task_best is not None:
             self.reference_genomes.append(self.task_best)
         self.task_best = None
+        self._distances = None
+
+    def adopt(self, exported: dict[str, Any]) -> None:
+        """Put the exported genome (``export``) back into the population the next ``ask`` returns,
+        in place of the genome with the lowest fitness of the last generation: a new offspring has
+        not been evaluated yet and counts lowest (the newest first), so the elites are kept. It
+        gets a new genome key; the node and innovation counters move past its node keys and
+        innovation numbers (a from-scratch population's counters may lie below them), and the
+        population is speciated again, as neat-python speciates a new one. The population's size
+        is unchanged."""
+        if self._asked is not None:
+            raise RuntimeError("adopt() goes between tell() and the next ask()")
+        check_export(exported, self.obs_dim)
+        for key in ("genetics", "unconnected_outputs"):
+            if exported.get(key) != getattr(self, key):
+                raise ValueError(f"the controller has {key} {exported.get(key)!r}, "
+                                 f"this optimiser {getattr(self, key)!r}")
+        victim = min(self.population.values(), key=lambda g: (-math.inf if g.fitness is None else g.fitness, -g.key))
+        genome = genome_from_export({**exported, "genome_key": next(self.reproduction.genome_indexer)}, self.config)
+        del self.population[victim.key]
+        self.reproduction.ancestors.pop(victim.key, None)
+        self.population[genome.key] = genome
+        self.reproduction.ancestors[genome.key] = ()
+        gc = self.config.genome_config
+        following = _take_counter(gc, "node_indexer")
+        gc.node_indexer = itertools.count(max(max(genome.nodes) + 1, following or 0))
+        tracker = self.reproduction.innovation_tracker
+        tracker.global_counter = max([tracker.global_counter, *(c.innovation for c in genome.connections.values())])
+        with self._neat_random():  # the generation this population was speciated in (tell counts on after it)
+            self.species.speciate(self.config, self.population, max(self.generation - 1, 0))
         self._distances = None
 
     # ---------------------------------------------------------------------------- state

@@ -26,7 +26,7 @@ _TYPES = schema(RunConfig)
 _LABELS = {"reg": "reg", "seed": "seed", "population": "pop", "generations": "gen", "evals": "evals",
            "retention_every": "ret", "checkpoint_every": "ckpt", "threads": "threads", "eval_threads": "evalthreads",
            "episodes_every": "ep", "rehearsal": "rehearsal", "reference_every": "refevery", "gap_window": "gap"}
-_SWITCHES = {"joint": "joint", "from_scratch": "scratch"}
+_SWITCHES = {"joint": "joint", "from_scratch": "scratch", "archive": "archive"}
 """Boolean run settings named in a trial's name by themselves (``neat-joint-seed42``)."""
 @dataclass
 class Trial:

@@ -16,6 +16,12 @@ configuration apart from the others plotted (``rundir.config_differences``, e.g.
 ``<prefix>-species.png``        NEAT: the number of species over generations
 ``<prefix>-lifespans[-seed<S>].png``  NEAT: each species' life (birth to extinction) and size,
                                  from ``species.csv`` (generation, species_id, size); one per seed
+``<prefix>-network-task<i>-<task>[-seed<S>].png``  per task end, its top controller against the
+                                 regulariser's reference (``lifelong_evo.networks``): NEAT's
+                                 network (inputs read, hidden nodes, outputs; enabled connections,
+                                 red positive, blue negative, width by weight, dashed where the
+                                 reference lacks them) and its genetic distance; an ES's
+                                 per-layer distance to the reference; one per seed
 
 A group of several seeds is drawn as the mean over seeds with a shaded min-max band. Colours are
 the task colours. Without ``--out`` the figures go next to the runs they plot: into the deepest
@@ -40,7 +46,8 @@ from envs import color_rgb, task_rgb
 
 from ..errors import UserError
 from ..metrics import CURRENT_LEVELS, current_curve
-from ..rundir import Run, config_differences, describe_config, group_runs, load_runs, retention_columns
+from ..networks import NetworkView, describe, task_end_views
+from ..rundir import Run, RunDir, config_differences, describe_config, group_runs, load_runs, retention_columns
 from ..schedule import distinct_tasks, schedule_of
 from .tables import sorted_groups
 
@@ -273,6 +280,46 @@ def figure_lifespans(run: Run, rows: list[tuple[int, int, int]] | None, path: Pa
     return save(fig, path)
 
 
+def figure_network(view: NetworkView, path: Path, label: str) -> Path:
+    """A task end's top controller (``networks.NetworkView``): NEAT's network in columns by depth,
+    or an MLP's distance to its reference per layer (without a reference: its parameters per layer)."""
+    import matplotlib.pyplot as plt
+
+    if view.is_neat:
+        fig, ax = plt.subplots(figsize=(9, 7), constrained_layout=True)
+        columns: dict[int, list[int]] = {}
+        for node in view.nodes:
+            columns.setdefault(node.depth, []).append(node.key)
+        where = {key: (depth, (len(keys) - 1) / 2 - row) for depth, keys in columns.items()
+                 for row, key in enumerate(keys)}
+        biggest = max((abs(e.weight) for e in view.edges), default=1.0) or 1.0
+        for edge in view.edges:
+            (x0, y0), (x1, y1) = where[edge.source], where[edge.target]
+            ax.plot([x0, x1], [y0, y1], color="tab:red" if edge.weight > 0 else "tab:blue",
+                    linewidth=0.3 + 2.5 * abs(edge.weight) / biggest, linestyle="--" if edge.new else "-", alpha=0.6)
+        for role, color in (("input", "0.6"), ("hidden", "#f0c850"), ("output", "#5aaaf9")):
+            keys = [node.key for node in view.nodes if node.role == role]
+            ax.scatter([where[k][0] for k in keys], [where[k][1] for k in keys], s=60, color=color,
+                       edgecolor="black", zorder=3, label=f"{role} ({len(keys)})")
+            for key in keys:
+                ax.annotate(str(key), where[key], fontsize=6, ha="center", va="center", zorder=4)
+        ax.set_axis_off()
+        ax.legend(fontsize=8, loc="lower right")
+    else:
+        fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
+        sizes = view.layer_sizes
+        layers = [f"{a} -> {b}" for a, b in zip(sizes, sizes[1:])]
+        if view.layer_distances:
+            ax.bar(layers, view.layer_distances, color="tab:gray")
+            ax.set_ylabel(f"Euclidean distance to {view.reference}")
+        else:
+            ax.bar(layers, [(a + 1) * b for a, b in zip(sizes, sizes[1:])], color="tab:gray")
+            ax.set_ylabel("parameters (no reference)")
+        ax.set_xlabel("layer (inputs -> outputs)")
+    ax.set_title(f"{label}\n{describe(view)}", fontsize=9)
+    return save(fig, path)
+
+
 CONFIG_COLORS = ("#1f77b4", "#ff7f0e", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#000000", "#17becf",
                   "#9467bd", "#d62728", "#2ca02c")
 """Line colours of configurations in overlays: the first ones avoid the task colours."""
@@ -295,15 +342,19 @@ def slug(config: dict[str, Any], differences: list[str] = ()) -> str:
 
 
 def plot_group(group: list[Run], species: dict[Path, list[tuple[int, int, int]] | None], out: Path, prefix: str,
-               label: str) -> list[Path]:
+               label: str, networks: dict[Path, list[tuple[int, NetworkView]]]) -> list[Path]:
     """Every figure of one configuration's runs, titled ``label`` (``species``: each run's
-    species.csv rows, by path); returns the files written."""
+    species.csv rows, by path; ``networks``: its task ends' networks); returns the files written."""
     written = [figure_retention(group, "pop", out / f"{prefix}-retention-pop.png", label),
                figure_retention(group, "top", out / f"{prefix}-retention-top.png", label),
                figure_species(group, out / f"{prefix}-species.png", label)]
     for run in group:  # lifespans are per run: one figure per seed
         name = f"{prefix}-lifespans.png" if len(group) == 1 else f"{prefix}-lifespans-seed{run.seed}.png"
         written.append(figure_lifespans(run, species[run.path], out / name, label))
+        for i, view in networks[run.path]:
+            seed = "" if len(group) == 1 else f"-seed{run.seed}"
+            task = re.sub(r"[^A-Za-z0-9.]+", "-", view.controller.removesuffix("-top"))
+            written.append(figure_network(view, out / f"{prefix}-network-{task}{seed}.png", label))
     return [path for path in written if path is not None]
 
 
@@ -318,13 +369,15 @@ def plot_runs(paths, out: str | Path | None = None) -> list[Path]:
     groups = group_runs(runs)
     target = Path(out) if out is not None else Path(os.path.commonpath([r.path.resolve() for r in runs]))
     species = {run.path: run.species_rows() for run in runs}  # read and checked before anything is drawn
+    networks = {run.path: task_end_views(run.config, [phase.name for phase in schedule_of(run.config)],
+                                         RunDir(run.path).read_controllers()) for run in runs}
     check_writable(target)
     configs = [group[0].config for group in groups]
     written = []
     for group in groups:
         differences = config_differences(group[0].config, configs)
         written += plot_group(group, species, target, slug(group[0].config, differences),
-                              describe_config(group[0].config, configs))
+                              describe_config(group[0].config, configs), networks)
     return written
 
 

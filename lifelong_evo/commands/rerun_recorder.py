@@ -11,6 +11,15 @@ What is recorded (application id ``lifelong_evo``, recording id ``lifelong_evo/<
   ``curves/species``                                   NEAT's species count
   ``curves/extra/<name>``                              the optimiser's extra scalars (e.g. ES sigma)
   ``log``                                              a text entry at each drift and task end
+  ``network/graph``, ``network/summary``               at each task end, the top individual's network
+                                                       against its reference (``lifelong_evo.networks``):
+                                                       NEAT's nodes and enabled connections (a graph
+                                                       view; the weights as ``weight`` values beside
+                                                       the edges, connections the reference lacks as
+                                                       ``new``); an MLP's layer sizes and per-layer
+                                                       distance (``network/layer_distance``, a bar
+                                                       chart); the summary as markdown, with every
+                                                       weight or distance. The latest task end shows.
   (a NaN point at a drift ends the line of each series that pauses there)
 ``step`` timeline, episodes of each task end's top individual on every task seen so far, under
 ``episodes/gen<G>_<phase task>/on_<task>/``: ``arena`` and ``drop_zone`` (static outlines; the
@@ -51,6 +60,7 @@ from envs import COLOR_RGB, color_rgb, task_rgb
 from ..episodes import Episode
 from ..errors import UserError
 from ..metrics import GenerationRecord
+from ..networks import NetworkView, describe
 from ..recording import Recorder
 from ..schedule import distinct_tasks
 
@@ -70,6 +80,8 @@ DROP_ZONE_RGB = (255, 170, 60)
 FAILED_RGB = (110, 60, 20)
 """The colour of a failed robot (it carries nothing, so no box colour is lost)."""
 FLOOR_RGB = (70, 72, 80)
+NODE_RGB = {"input": (150, 150, 150), "hidden": (240, 200, 80), "output": (90, 170, 250)}
+"""A NEAT node's colour by role in the network graph."""
 
 
 def sink_mode() -> str:
@@ -100,9 +112,10 @@ def expected_episode_paths(config) -> list[tuple[str, str]]:
     return paths
 
 
-def make_blueprint(episodes: list[tuple[str, str]], curves: bool = True):
-    """Curves on the left (current performance above, retention/regularised/species in tabs),
-    the arena on the right (one tab per episode, cumulative reward below), the text log below."""
+def make_blueprint(episodes: list[tuple[str, str]], curves: bool = True, graph: bool = True):
+    """Curves on the left (current performance above, retention/regularised/species and the top
+    individual's network in tabs: a ``graph`` for NEAT, else the layers' distances), the arena on
+    the right (one tab per episode, cumulative reward below), the text log below."""
     import rerun.blueprint as rrb
 
     arenas = [rrb.Spatial2DView(origin=path, name=name, background=FLOOR_RGB) for path, name in episodes]
@@ -120,7 +133,10 @@ def make_blueprint(episodes: list[tuple[str, str]], curves: bool = True):
                      rrb.TimeSeriesView(origin="curves/regularised", name="regularised fitness"),
                      rrb.TimeSeriesView(origin="curves", contents=["+ /curves/species", "+ /curves/centre/**",
                                                                    "+ /curves/extra/**"],
-                                        name="species / centre / optimiser")),
+                                        name="species / centre / optimiser"),
+                     rrb.GraphView(origin="network/graph", name="network (task ends)") if graph else
+                     rrb.BarChartView(origin="network/layer_distance", name="network: layer distances (task ends)"),
+                     rrb.TextDocumentView(origin="network/summary", name="network vs reference")),
             row_shares=[1, 1])
         parts = [rrb.Horizontal(left, right, column_shares=[3, 2])]
     else:
@@ -155,6 +171,8 @@ class RerunRecorder(Recorder):
         """The arena tabs of the blueprint sent at the start (None: no update at close)."""
         self.task_colors: dict[str, tuple[int, int, int]] = {}
         """The display colour of each task of the run, by name (``for_run`` fills it)."""
+        self.graph = True
+        """The blueprint shows networks as graphs (NEAT), else as layer distances."""
 
     @classmethod
     def for_run(cls, run_dir, config, resume: bool) -> "RerunRecorder":
@@ -162,7 +180,9 @@ class RerunRecorder(Recorder):
         path = run_dir.recording_path(resume)
         expected = expected_episode_paths(config)
         recorder = cls(path, recording_id=f"{APPLICATION_ID}/{name}", recording_name=name,
-                       arena_size=config.env_config().size, blueprint=make_blueprint(expected), mode=sink_mode())
+                       arena_size=config.env_config().size, mode=sink_mode(),
+                       blueprint=make_blueprint(expected, graph=config.algo == "neat"))
+        recorder.graph = config.algo == "neat"
         recorder.episode_views = expected
         recorder.task_colors = {task.name: color_rgb(task.target) for task in distinct_tasks(config.phases())}
         return recorder
@@ -275,6 +295,37 @@ class RerunRecorder(Recorder):
         self.text(generation, f"generation {generation}: end of phase {phase_index} ({phase_task}); its top "
                               f"individual earns {episode.total_reward:g} on {task.name} ({path})")
 
+    def log_network(self, generation: int, view: NetworkView) -> None:
+        import rerun as rr
+
+        self.flush_curves()
+        stream = self.stream
+        stream.set_time("generation", sequence=generation)
+        lines = [f"## {describe(view)}", ""]
+        if view.is_neat:
+            rows: dict[int, int] = {}
+            positions = []
+            for node in view.nodes:  # columns by depth, nodes stacked within a column
+                positions.append((150.0 * node.depth, 40.0 * rows.get(node.depth, 0)))
+                rows[node.depth] = rows.get(node.depth, 0) + 1
+            stream.log("network/graph", rr.GraphNodes(
+                [str(node.key) for node in view.nodes], positions=positions,
+                colors=[NODE_RGB[node.role] for node in view.nodes],
+                labels=[f"{node.role} {node.key}" for node in view.nodes]))
+            stream.log("network/graph", rr.GraphEdges([(str(e.source), str(e.target)) for e in view.edges],
+                                                      graph_type="directed"),
+                       rr.AnyValues(weight=[e.weight for e in view.edges], new=[e.new for e in view.edges]))
+            lines += ["| from | to | weight | new |", "|---|---|---|---|"]
+            lines += [f"| {e.source} | {e.target} | {e.weight:.4g} | {'yes' if e.new else ''} |" for e in view.edges]
+        else:
+            if view.layer_distances:
+                stream.log("network/layer_distance", rr.BarChart(np.array(view.layer_distances, dtype=np.float64)))
+            lines += ["| layer | size | distance |", "|---|---|---|"]
+            distances = view.layer_distances or [None] * (len(view.layer_sizes) - 1)
+            lines += [f"| {i + 1} | {a} -> {b} | {'' if d is None else f'{d:.4g}'} |"
+                      for i, (a, b, d) in enumerate(zip(view.layer_sizes, view.layer_sizes[1:], distances))]
+        stream.log("network/summary", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN))
+
     def log_episode_at(self, path: str, episode: Episode, generation: int | None = None) -> None:
         """One episode under ``path`` on the ``step`` timeline (and at ``generation``, if given)."""
         import rerun as rr
@@ -345,7 +396,8 @@ class RerunRecorder(Recorder):
             extra = [(path, path.split("/", 1)[1]) for path in self.episodes_logged if path not in known]
             if extra:  # episodes the schedule did not predict (e.g. every few generations): show them too
                 views = sorted(self.episode_views + extra)
-                self._stream.send_blueprint(make_blueprint(views), make_active=False, make_default=True)
+                self._stream.send_blueprint(make_blueprint(views, graph=self.graph), make_active=False,
+                                            make_default=True)
         if self._stream is not None:
             self._stream.flush()
             self._stream.disconnect()

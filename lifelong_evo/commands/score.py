@@ -82,7 +82,7 @@ def score_run(run_dir: RunDir, episodes: int | None = None) -> dict[str, Any]:
         raise RunDirError(f"{run_dir.path} has no exported controller to score (controllers/ holds none)")
     phases = config.phases()
     scores = score_controllers(controllers, config.env_config(), distinct_tasks(phases), episodes)
-    block = held_out_summary([phase.name for phase in phases], scores, episodes)
+    block = held_out_summary([phase.name for phase in phases], scores, episodes, config.archive)
     summary = {key: value for key, value in (run_dir.checked_summary() or {}).items() if key != "held_out"}
     run_dir.write_summary({**summary, "held_out": block})
     return block
