@@ -1,4 +1,4 @@
-"""What docs/results.md says of the baselines' data, checked on the data kept: the grid's own runs
+"""What docs/studies/baselines.md says of the baselines' data, checked on the data kept: the grid's own runs
 in docs/data/baselines and the deciding study's runs it reuses (``REUSED``). Each is its trial of
 examples/sweep_baselines.toml (the settings `sweep` would resume it with), keeps what the held-out
 protocol needs, the runs of one family and seed were made on the one kind of CPU the plan gives
@@ -25,6 +25,7 @@ from tests.run_data import assert_keeps_what_held_out_scoring_needs, first_task_
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "docs/data"
+PAGE = ROOT / "docs/studies/baselines.md"
 SEEDS = (42, 13, 17, 24, 31)
 INTEL = {"cpu": "Intel(R) Xeon(R) Processor (family 6, model 167)", "vector_isa": "AVX512"}
 AMD_ZEN4 = {"cpu": "AMD EPYC (family 25, model 17)", "vector_isa": "AVX512"}
@@ -33,14 +34,14 @@ SEP_CMAES_ON_AMD_ZEN4 = (42, 24)
 runs are the grid's, and part 4's two stay the study's (the second addition of 2026-12-01)."""
 PLANNED_CPU = {("neat", 17): AMD_ZEN4, ("neat", 31): AMD_ZEN4, ("neat", 24): AMD_ZEN4,
                **{("sep-cmaes", seed): AMD_ZEN4 for seed in SEP_CMAES_ON_AMD_ZEN4}}
-"""The kind of CPU of each family and seed whose runs are not on the Intel VM (docs/results.md, the
+"""The kind of CPU of each family and seed whose runs are not on the Intel VM (docs/studies/baselines.md, the
 baselines plan's additions of 2026-12-01); every other family and seed, the reused study runs
 included, is the Intel VM's."""
 REUSED = {**{f"sep-cmaes-{row}-seed{s}": DATA / f"study/families/{study_row}-seed{s}"
              for row, study_row in (("reg0", "reg0"), ("reg100-importancel2", "reg100"))
              for s in SEEDS if s not in SEP_CMAES_ON_AMD_ZEN4},
           "neat-reg11-seed13": DATA / "study/paper-claim/reg11-seed13"}
-"""The grid's trials whose runs are the deciding study's (docs/results.md, the baselines plan's
+"""The grid's trials whose runs are the deciding study's (docs/studies/baselines.md, the baselines plan's
 additions of 2026-11-28, 2026-11-29 and 2026-12-01): trial -> the study run kept in docs/data/study."""
 PLANNED_CPU_OF_TRIAL = {"neat-joint-seed13": AMD_ZEN4, "sep-cmaes-joint-seed42": INTEL}
 """Trials whose kind of CPU is not their family and seed's: allowed only for a run that shares no
@@ -116,7 +117,7 @@ def test_a_run_that_took_over_a_first_task_repeats_it(run):
 
 def _cpu(run: Path) -> dict:
     """The one kind of CPU a run played on: a grid run's from its summary.json, the study's runs'
-    (made before runs named their machine) the Intel VM's, as docs/results.md records."""
+    (made before runs named their machine) the Intel VM's, as docs/studies/baselines.md records."""
     if run.parent != DATA / "baselines":
         return INTEL
     (cpu,) = {json.dumps(cpu, sort_keys=True) for cpu in _cpus(run)}
@@ -146,14 +147,14 @@ def _kept(started_from: Path) -> Path | None:
 
 
 def test_the_status_counts_the_runs_kept():
-    text = (ROOT / "docs/results.md").read_text()
+    text = PAGE.read_text()
     ((finished, planned),) = re.findall(r"Baselines:\s+(\d+)\s+of\s+(\d+)\s+runs\s+of\s+the\s+grid's\s+own", text)
     assert (int(finished), int(planned)) == (len(OWN), len(TRIALS) - len(REUSED))
 
 
 VERDICTS = {"NEAT (0.92)": ("neat", "reg11"), "sep-CMA-ES": ("sep-cmaes", "reg100-importancel2")}
 """Per family, as its verdict paragraph names it (``**Verdict, <family>:**``): its trials' name
-prefix and its regulariser's row (docs/results.md, the verdict rule)."""
+prefix and its regulariser's row (docs/studies/baselines.md, the verdict rule)."""
 
 
 def _held_out_red_retention(row: str) -> dict[int, float]:
@@ -175,7 +176,7 @@ def test_a_family_verdict_is_drawn_from_its_complete_data_by_the_rule(family):
     paired 95% t-interval excludes zero, beside the exact sign-flip p; no verdict before every run
     of the family is kept."""
     prefix, regulariser_row = VERDICTS[family]
-    text = (ROOT / "docs/results.md").read_text()
+    text = PAGE.read_text()
     paragraphs = re.findall(rf"\*\*Verdict, {re.escape(family)}:\*\*(.*?)(?:\n\n|$)", text, re.S)
     if not {name for name in TRIALS if name.startswith(prefix + "-")} <= KEPT.keys():
         assert paragraphs == []

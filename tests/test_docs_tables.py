@@ -1,6 +1,6 @@
 """The tables the docs quote from ``compare`` are ``compare``'s output on the data the docs keep.
 
-A quoted block in docs/*.md reads
+A quoted block in a page under docs/ (docs/results.md, docs/studies/*.md) reads
 
     <!-- compare docs/data/PART [compare's options] -->
     ...lines copied from compare's comparison.md...
@@ -33,9 +33,9 @@ block's marker cannot pass unnoticed)."""
 
 def blocks() -> list[tuple[str, str, str]]:
     found = []
-    for page in sorted((ROOT / "docs").glob("*.md")):
+    for page in sorted((ROOT / "docs").rglob("*.md")):
         for match in BLOCK.finditer(page.read_text()):
-            found.append((page.name, match["command"], match["body"]))
+            found.append((str(page.relative_to(ROOT / "docs")), match["command"], match["body"]))
     return found
 
 

@@ -1,7 +1,7 @@
-"""What docs/results.md says of the deciding study's data, checked on the data kept in
+"""What docs/studies/deciding-study.md says of the deciding study's data, checked on the data kept in
 docs/data/study: each run's numbers repeat the earlier run of its configuration and seed byte for
 byte where one exists (the reproducibility check of its plan), apart from the cells
-docs/results.md reports as not repeated (``DEVIATIONS``), the runs it reports as made on another
+docs/studies/deciding-study.md reports as not repeated (``DEVIATIONS``), the runs it reports as made on another
 kind of CPU (``ANOTHER_CPU``), and the retention cells the earlier run
 left empty (the stability gap's window, which the study's runs have and the earlier ones had
 not, scores earlier tasks in every generation just after a switch), and each run keeps what the
@@ -18,25 +18,26 @@ import pytest
 from tests.run_data import assert_keeps_what_held_out_scoring_needs, first_task_rows
 
 DATA = Path(__file__).resolve().parents[1] / "docs/data"
+PAGE = DATA.parent / "studies/deciding-study.md"
 EARLIER = {"paper-claim": (DATA / "paper-genetics", {}),
            "families": (DATA / "families", {"reg0-": "sep-cmaes-reg0-", "reg100-": "sep-cmaes-reg100-importancel2-"})}
 """Each part of the study -> the earlier study whose runs it repeats, and how a trial's name there
 begins where the two name the same configuration differently."""
 DEVIATIONS: dict[str, dict[int, dict[str, tuple[str, str]]]] = {
-    # docs/results.md, "Lambda 11 on seed 31 does not repeat its earlier run in one generation"
+    # docs/studies/deciding-study.md, "Lambda 11 on seed 31 does not repeat its earlier run in one generation"
     "paper-claim/reg11-seed31": {521: {"mean": ("5.53833332096537", "5.537333323508501"),
                                        "std": ("5.244873408500771", "5.243879552807582"),
                                        "reg_mean": ("-15.266338947316012", "-15.26733894477288"),
                                        "reg_std": ("7.005449016845879", "7.00590763634848")}},
 }
-"""The cells in which a study run does not repeat its earlier run, reported in docs/results.md
+"""The cells in which a study run does not repeat its earlier run, reported in docs/studies/deciding-study.md
 (the deciding study's status): run -> generation -> column -> (this run's value, the earlier
 run's). A run listed here must differ in exactly these cells; any other run, in none."""
 ANOTHER_CPU: dict[str, tuple[str, str]] = {
-    # docs/results.md, "Lambda 11 on seeds 13 and 24, run on the Intel AVX-512 VM, differ ... from generation 0"
+    # docs/studies/deciding-study.md, "Lambda 11 on seeds 13 and 24, run on the Intel AVX-512 VM, differ ... from generation 0"
     "paper-claim/reg11-seed13": ("0.06466666693488757", "0.06500000024835269"),
     "paper-claim/reg11-seed24": ("-0.025333333363135657", "-0.025333333065112432"),
-    # docs/results.md, "Part 4's reproducibility check"
+    # docs/studies/deciding-study.md, "Part 4's reproducibility check"
     "families/reg0-seed42": ("0.01229235997726751", "0.011295682196799307"),
     "families/reg0-seed13": ("0.05681063195201646", "0.05647840600869188"),
     "families/reg100-seed13": ("0.05681063195201646", "0.05647840600869188"),
@@ -49,7 +50,7 @@ ANOTHER_CPU: dict[str, tuple[str, str]] = {
     "families/reg100-seed42": ("0.01229235997726751", "0.011295682196799307"),
 }
 """Study runs made on another kind of CPU than their earlier run (an Intel VM against AMD ones),
-which part from it at generation 0, reported in docs/results.md: run -> generation 0's mean (this
+which part from it at generation 0, reported in docs/studies/deciding-study.md: run -> generation 0's mean (this
 run's, the earlier run's). Such a run is checked to differ from its first generation on."""
 RUNS = sorted(path for path in (DATA / "study").glob("*/*") if (path / "metrics.csv").is_file())
 
@@ -72,10 +73,10 @@ def test_a_study_run_repeats_its_earlier_run_and_keeps_its_controllers(run):
 
 
 def test_the_status_counts_the_runs_kept():
-    """docs/results.md's status of each part and the reproducibility checks of parts 1 and 4 are
+    """docs/studies/deciding-study.md's status of each part and the reproducibility checks of parts 1 and 4 are
     counted from the data: the runs kept, and those of them with an earlier run, passed where they
     differ in no cell."""
-    text = (DATA.parent / "results.md").read_text()
+    text = PAGE.read_text()
     for part, folder, planned in [(1, "paper-claim", 30), (2, "ms-lambda", 5), (3, "neat-lambda-grid", 8),
                                   (4, "families", 30), (5, "see-other-agents", 10)]:
         (finished,) = re.findall(rf"Part {part}:\s+(\d+)\s+of\s+{planned}\b", text)
@@ -154,3 +155,34 @@ def test_only_the_listed_cells_are_let_through(tmp_path):
     lines[211] = ",".join(cells)
     changed.write_text("".join(lines))
     assert set(_differing_cells(changed, earlier)) == {210}
+
+
+def _stays_the_red_reference(run: Path) -> bool:
+    """Whether the run's top individual at the end of its second task is the first task's, gene
+    for gene (the regulariser's reference, unchanged)."""
+    first, second = (json.loads((run / "controllers" / name).read_text())["genome"]
+                     for name in ("task0-red-top.json", "task1-green-top.json"))
+    return first == second
+
+
+def test_the_seeds_whose_top_individual_stays_the_red_reference():
+    """Part 1's "How the seeds behave" (and docs/results.md's verdict) name the seeds on which the
+    lambda = 11 top individual at the end of green is the unchanged red reference, and their share
+    of the summed held-out red R_top gain, counted here from the controllers and summaries."""
+    def red_retention(run: Path) -> float:
+        (cell,) = [cell for cell in json.loads((run / "summary.json").read_text())["held_out"]["forgetting"]
+                   if cell["at_end_of"] == 1 and cell["task"] == "red"]
+        return cell["R_top"]
+    part = DATA / "study" / "paper-claim"
+    seeds = sorted(int(run.name.removeprefix("reg11-seed")) for run in part.glob("reg11-seed*"))
+    gain = {seed: red_retention(part / f"reg11-seed{seed}") - red_retention(part / f"reg0-seed{seed}") for seed in seeds}
+    reference = [seed for seed in seeds if _stays_the_red_reference(part / f"reg11-seed{seed}")]
+    share = sum(gain[seed] for seed in reference) / sum(gain.values())
+    text = " ".join(PAGE.read_text().split())
+    kept, total = sum(gain[seed] for seed in reference), sum(gain.values())
+    assert (f"On {len(reference)} seeds ({', '.join(map(str, reference))}) the lambda = 11 top individual "
+            "at the end of green is the red reference itself") in text
+    assert f"they give {round(share * 100)}% of the summed R_top gain ({kept:.2f} of {total:.2f})" in text
+    verdict = " ".join((DATA.parent / "results.md").read_text().split())
+    assert f"({', '.join(map(str, reference[:-1]))} and {reference[-1]})" in verdict
+    assert f"about {round(share * 100)}% of the summed red-retention gain" in verdict
