@@ -37,13 +37,16 @@ from envs import numerics
 from . import checkpoint
 from .config import RunConfig, check_device
 from .episodes import play_episodes
+from .errors import RunDirError
 from .evaluate import Evaluation, evaluate, evaluate_together, update_threads
 from .held_out import score_controllers
 from .metrics import (INITIAL, FitnessStats, GenerationRecord, Retention, controller_key, retention, stability_gap,
                       summarise)
+from .metrics_csv import GenerationLog, MetricsLayout, read_metrics
 from .progress import Progress
+from .provenance import machine
 from .recording import Recorder
-from .rundir import GenerationLog, MetricsLayout, ResumeError, RunDir, RunDirError, machine, read_metrics
+from .rundir import ResumeError, RunDir
 from .schedule import Phase, distinct_tasks, training_episodes
 
 
@@ -63,7 +66,7 @@ class LoopState:
     """The run whose first task this one took over (``start_from``), if any."""
     wall_time_s: float = 0.0
     machines: list[dict[str, Any]] = field(default_factory=list)
-    """The machines the run's generations ran on (``rundir.machine``), each with the generation from
+    """The machines the run's generations ran on (``provenance.machine``), each with the generation from
     which it ran them: one entry per change of machine, so a run resumed where it ran has one."""
 
 
@@ -170,7 +173,7 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
         state.machines.append({"from_generation": state.generation, **here})
     layout = MetricsLayout(tuple(t.name for t in tasks), species=config.algo == "neat", centre=centre is not None,
                            diagnostics=optimizer.diagnostics)
-    log = GenerationLog(run_dir, layout, resumed_at=state.generation if resume or start_from else None)
+    log = GenerationLog(run_dir.path, layout, resumed_at=state.generation if resume or start_from else None)
     recorder = recorder or Recorder()
     display = Progress(sum(p.generations for p in phases), state.generation, mode=progress)
     started = time.monotonic() - state.wall_time_s
