@@ -39,14 +39,17 @@ from envs import numerics
 from . import checkpoint
 from .config import RunConfig, check_device
 from .episodes import play_episodes
+from .errors import RunDirError
 from .evaluate import Evaluation, evaluate, evaluate_together, update_threads
 from .held_out import score_controllers
 from .metrics import (INITIAL, FitnessStats, GenerationRecord, Retention, controller_key, retention, stability_gap,
                       summarise)
+from .metrics_csv import GenerationLog, MetricsLayout, read_metrics
 from .networks import network_view, reference_name
 from .progress import Progress
+from .provenance import machine
 from .recording import Recorder
-from .rundir import GenerationLog, MetricsLayout, ResumeError, RunDir, RunDirError, machine, read_metrics
+from .rundir import ResumeError, RunDir
 from .schedule import Phase, distinct_tasks, training_episodes
 
 
@@ -68,7 +71,7 @@ class LoopState:
     """The skill archive (``archive``): each finished task's top controller at its latest end, by task."""
     wall_time_s: float = 0.0
     machines: list[dict[str, Any]] = field(default_factory=list)
-    """The machines the run's generations ran on (``rundir.machine``), each with the generation from
+    """The machines the run's generations ran on (``provenance.machine``), each with the generation from
     which it ran them: one entry per change of machine, so a run resumed where it ran has one."""
 
 
@@ -175,7 +178,7 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
         state.machines.append({"from_generation": state.generation, **here})
     layout = MetricsLayout(tuple(t.name for t in tasks), species=config.algo == "neat", centre=centre is not None,
                            diagnostics=optimizer.diagnostics)
-    log = GenerationLog(run_dir, layout, resumed_at=state.generation if resume or start_from else None)
+    log = GenerationLog(run_dir.path, layout, resumed_at=state.generation if resume or start_from else None)
     recorder = recorder or Recorder()
     display = Progress(sum(p.generations for p in phases), state.generation, mode=progress)
     started = time.monotonic() - state.wall_time_s

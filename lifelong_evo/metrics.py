@@ -77,7 +77,7 @@ def retention(scores: torch.Tensor, selection: torch.Tensor, centre_index: int |
 
 @dataclass(frozen=True)
 class GenerationRecord:
-    """What the lifelong loop measured in one generation: ``rundir.MetricsLayout`` flattens it
+    """What the lifelong loop measured in one generation: ``metrics_csv.MetricsLayout`` flattens it
     into a metrics.csv row, the recorder draws it as it is."""
 
     task: str

@@ -211,7 +211,7 @@ def _row(row: Any, where: str, phase_key: tuple[str, range], schedule: list[str]
 
 
 def check_metrics(rows: list[dict[str, str]], path: Path, config: RunConfig) -> list[dict[str, str]]:
-    """metrics.csv ``rows`` (``rundir.read_metrics``'s, integer columns already checked), checked
+    """metrics.csv ``rows`` (``metrics_csv.read_metrics``'s, integer columns already checked), checked
     against config.json's schedule: each row's ``task_index`` within it and its ``task`` the
     schedule's task there, and each generation after the one before (a generation written twice,
     or rows out of order, is another run's rows or a damaged file); RunDirError naming the line."""

@@ -261,7 +261,7 @@ def test_a_mixed_run_writes_the_current_tasks_own_curve_and_forward_transfer_rea
 
 def test_the_figures_draw_a_mixed_runs_own_current_curve(tmp_path):
     from lifelong_evo.commands.plots import current_by_task, stack_current
-    from lifelong_evo.rundir import load_runs
+    from lifelong_evo.runs import load_runs
 
     run_dir = _run(tmp_path, "rehearsal", schedule="red:2,green:3", evals=4, rehearsal=0.5, gap_window=0)
     rows = _rows(run_dir)
@@ -316,7 +316,7 @@ def test_compare_sets_sizes_and_budgets_side_by_side(tmp_path):
     assert cells["neat"][4].startswith("nodes ") and f"; connections {sum(connections) / 2:.2f} [" in cells["neat"][4]
     # how often an ES's top individual is its centre, from metrics.csv's top and centre columns
     from lifelong_evo.commands.tables import top_is_centre_name
-    from lifelong_evo.rundir import read_metrics
+    from lifelong_evo.metrics_csv import read_metrics
 
     shares = []
     for seed in (1, 2):

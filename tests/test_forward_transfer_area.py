@@ -10,7 +10,7 @@ import pytest
 
 from lifelong_evo.commands.compare import compare_table, scratch_partners
 from lifelong_evo.metrics import forward_transfer_area
-from lifelong_evo.rundir import load_runs
+from lifelong_evo.runs import load_runs
 
 PHASES = ["red", "green", "red"]
 

@@ -85,6 +85,41 @@ def test_the_run_core_never_imports_a_command():
     assert not {k: v for k, v in offending.items() if v}
 
 
+RUN_DIRECTORY_LAYERS = (
+    ("lifelong_evo.run_names", "lifelong_evo.run_lock", "lifelong_evo.provenance", "lifelong_evo.json_files",
+     "lifelong_evo.metrics_csv", "lifelong_evo.run_files"),
+    ("lifelong_evo.rundir",),
+    ("lifelong_evo.runs",),
+)
+"""The run directory's modules, lowest first, one job each: its name, its lock, provenance, its
+JSON files, metrics.csv's schema, writer and reader, and the checks of what is read; then
+``RunDir`` (making, writing and the resume rule) on them; then reading runs back. A module imports
+only from the layers below its own, never from its own layer or above."""
+
+
+def test_the_run_directory_modules_import_only_downwards():
+    layer_of = {name: level for level, names in enumerate(RUN_DIRECTORY_LAYERS) for name in names}
+    assert set(layer_of) <= set(MODULES)
+    offending = {name: sorted(t for t in GRAPH[name] if t in layer_of and layer_of[t] >= layer_of[name])
+                 for name in layer_of}
+    assert not {k: v for k, v in offending.items() if v}
+
+
+def test_callers_import_a_moved_name_from_its_own_module():
+    """``rundir`` hands on no name of its neighbours: nobody imports from it a name it imports."""
+    rundir = ast.parse(MODULES["lifelong_evo.rundir"].read_text())
+    imported = {alias.asname or alias.name for node in rundir.body if isinstance(node, ast.ImportFrom)
+                for alias in node.names}
+    offending = {}
+    for name, path in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").endswith("rundir"):
+                taken = sorted(alias.name for alias in node.names if alias.name in imported)
+                if taken:
+                    offending[name] = taken
+    assert not offending
+
+
 def test_only_the_ray_module_imports_ray():
     importers = sorted(name for name in MODULES if any(t == "ray" or t.startswith("ray.") for t in _imported(name)))
     assert importers == [RAY_MODULE]

@@ -404,7 +404,7 @@ def test_summary_names_the_machine_and_a_resume_elsewhere_adds_one(smoke_runs, t
     CPUs): one entry for a run made in one place; a run resumed on another machine adds that
     machine from the generation it resumed at; resumed where it ran, it adds none."""
     from lifelong_evo import loop
-    from lifelong_evo.rundir import machine
+    from lifelong_evo.provenance import machine
 
     here = machine("cpu")
     assert here["vector_isa"] == torch.backends.cpu.get_cpu_capability() and here["cpus"] >= 1 and here["cpu"]

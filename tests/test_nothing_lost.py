@@ -21,7 +21,8 @@ import pytest
 from algorithms import REGISTRY
 from lifelong_evo.commands.cli import main
 from lifelong_evo.commands.sweep import run_trial
-from lifelong_evo.rundir import LOCK, MARKER, RunDir
+from lifelong_evo.run_lock import LOCK
+from lifelong_evo.rundir import MARKER, RunDir
 
 ROOT = Path(__file__).resolve().parents[1]
 SIZE = ["--preset", "smoke", "--no-record", "--generations", "2", "--env", "duration=30"]

@@ -110,7 +110,9 @@ def test_native_is_torchs_own_arithmetic():
 
 def test_a_run_records_its_numerics_and_resume_keeps_them(tmp_path, capsys):
     from lifelong_evo.commands.cli import main
-    from lifelong_evo.rundir import RunDir, configuration_of, read_json
+    from lifelong_evo.json_files import read_json
+    from lifelong_evo.rundir import RunDir
+    from lifelong_evo.runs import configuration_of
 
     small = ["--algo", "neat", "--preset", "smoke", "--generations", "1", "--env", "duration=30", "--no-record",
              "--quiet", "--out", str(tmp_path), "--name", "run"]

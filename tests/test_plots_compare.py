@@ -114,7 +114,8 @@ def test_plot_series_follow_metrics(sweep):
     """The curves drawn are metrics.csv's: the current task's best (NaN elsewhere), the retention
     where measured, stacked over the two seeds."""
     from lifelong_evo.commands.plots import current_by_task, retention_by_task
-    from lifelong_evo.rundir import group_runs, load_run, read_metrics
+    from lifelong_evo.metrics_csv import read_metrics
+    from lifelong_evo.runs import group_runs, load_run
 
     runs = [load_run(p) for p in sorted((sweep / "neat").iterdir())]
     groups = group_runs(runs)
@@ -197,7 +198,7 @@ def test_compare_groups_configurations_and_matches_hand_computation(sweep, tmp_p
 def test_the_retention_figure_draws_every_task_kept_while_another_is_current(sweep, tmp_path, monkeypatch):
     """Red through green (solid) and green through red's return (dotted): the seeds' mean of
     metrics.csv's retention columns, for the population and the top individual."""
-    from lifelong_evo.rundir import read_metrics
+    from lifelong_evo.metrics_csv import read_metrics
 
     figures = {}
     monkeypatch.setattr(plots, "save", lambda fig, path: figures.setdefault(path.name, fig) and path)
@@ -323,7 +324,7 @@ def test_a_broken_metrics_csv_is_named_by_file_line_and_column(tmp_path, capsys)
             assert err.startswith("error: ") and message in err and err.count("\n") == 1, err
             assert not (tmp_path / "out").exists(), "nothing is written"
     (run / "metrics.csv").write_text(header + "red,0,0,0,\nred,0,1,1,2.5\nred,0,2,2,3")  # a blank, a half line
-    from lifelong_evo.rundir import load_run
+    from lifelong_evo.runs import load_run
 
     assert load_run(run).column("best")[1:].tolist() == [2.5] and len(load_run(run).metrics) == 2
 
@@ -342,7 +343,7 @@ def test_a_broken_species_csv_is_named_too(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "species.csv line 3, column species_id: 'one' is not an integer" in err and err.count("\n") == 1
     (run / "species.csv").write_text("generation,species_id,size\n0,1,20\n1,1,2")  # a half-written last line
-    from lifelong_evo.rundir import load_run
+    from lifelong_evo.runs import load_run
 
     assert load_run(run).species_rows() == [(0, 1, 20)]
 

@@ -59,7 +59,7 @@ def es_run(tmp_path_factory):
 
 def check_scalars_equal_metrics(run: Path, rows: dict[str, list[dict]]) -> int:
     """Every curve point equals metrics.csv, and nothing else was logged; returns points checked."""
-    from lifelong_evo.rundir import read_metrics
+    from lifelong_evo.metrics_csv import read_metrics
 
     metrics = read_metrics(run / "metrics.csv")
     expected: dict[str, dict[int, float]] = defaultdict(dict)

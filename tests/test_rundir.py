@@ -16,22 +16,13 @@ import pytest
 from algorithms.neat.genetics import DEFAULT_GENETICS
 from envs import ForagingConfig
 from lifelong_evo.config import RunConfig
+from lifelong_evo.errors import RunDirError
 from lifelong_evo.metrics import FitnessStats, GenerationRecord, Retention
-from lifelong_evo.rundir import (
-    LOCK,
-    MARKER,
-    GenerationLog,
-    MetricsLayout,
-    Run,
-    RunDir,
-    RunDirError,
-    RunDirInUseError,
-    describe_config,
-    group_runs,
-    library_versions,
-    retention_columns,
-    source_commit,
-)
+from lifelong_evo.metrics_csv import GenerationLog, MetricsLayout, retention_columns
+from lifelong_evo.provenance import library_versions, source_commit
+from lifelong_evo.run_lock import LOCK, RunDirInUseError
+from lifelong_evo.rundir import MARKER, RunDir
+from lifelong_evo.runs import Run, describe_config, group_runs
 
 NEAT = MetricsLayout(("red", "green"), species=True, centre=False,
                      diagnostics=("distance_mean", "distance_std", "disabled_fraction"))
@@ -50,7 +41,7 @@ def record(generation: int, **changes) -> GenerationRecord:
 
 def test_a_record_is_the_row_runs_have_always_written(tmp_path):
     run_dir = RunDir(tmp_path)
-    log = GenerationLog(run_dir, NEAT, resumed_at=None)
+    log = GenerationLog(run_dir.path, NEAT, resumed_at=None)
     log.write(record(7))
     log.write(record(8, retention={}))
     log.close()
@@ -67,7 +58,7 @@ def test_a_record_is_the_row_runs_have_always_written(tmp_path):
 
 def test_an_es_row_has_the_centre_and_only_declared_diagnostics(tmp_path):
     run_dir = RunDir(tmp_path)
-    log = GenerationLog(run_dir, ES, resumed_at=None)
+    log = GenerationLog(run_dir.path, ES, resumed_at=None)
     log.write(record(7, species_sizes=None))
     log.close()
     header, row = run_dir.metrics.read_text().splitlines()
@@ -86,14 +77,14 @@ def test_every_layout_fills_only_its_own_columns():
 
 def test_a_resumed_log_keeps_the_generations_its_checkpoint_covers(tmp_path):
     run_dir = RunDir(tmp_path)
-    log = GenerationLog(run_dir, NEAT, resumed_at=None)
+    log = GenerationLog(run_dir.path, NEAT, resumed_at=None)
     for generation in (5, 6, 7):
         log.write(record(generation))
     log.close()
     whole = run_dir.metrics.read_text()
     with open(run_dir.metrics, "a") as handle:
         handle.write("green,1,8,3,1.5")  # a killed run's half line
-    log = GenerationLog(run_dir, NEAT, resumed_at=7)
+    log = GenerationLog(run_dir.path, NEAT, resumed_at=7)
     log.write(record(7))
     log.close()
     assert run_dir.metrics.read_text() == whole

@@ -13,7 +13,7 @@ from lifelong_evo.commands.compare import compare_table
 from lifelong_evo.commands.statistics import t_interval
 from lifelong_evo.commands.tables import Estimate
 from lifelong_evo.metrics import stability_gap, summarise
-from lifelong_evo.rundir import MetricsLayout, read_metrics
+from lifelong_evo.metrics_csv import MetricsLayout, read_metrics
 
 SCHEDULE = "red:4,green:4,red:4,purple:4"
 PHASES = ["red", "green", "red", "purple"]

@@ -7,7 +7,7 @@ from lifelong_evo.commands import plots
 from lifelong_evo.commands.cli import main
 from lifelong_evo.commands.replay import replay
 from lifelong_evo.commands.rerun_recorder import drop_zone_outline
-from lifelong_evo.rundir import load_runs
+from lifelong_evo.runs import load_runs
 from tests.test_task_files import SOUTH, TINY, task_file
 
 

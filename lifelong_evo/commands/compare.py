@@ -3,7 +3,7 @@
 its baseline.
 
 Finds every run directory (config.json + summary.json) at or under the given paths (so a sweep
-folder works), groups the runs by configuration (``rundir.group_runs``: runs that differ only in
+folder works), groups the runs by configuration (``runs.group_runs``: runs that differ only in
 the seed, the speed settings and the output settings of ``RunConfig``, or at lambda 0 in the
 regulariser's options, are one) and writes, to ``--out`` (default: the one folder given, else
 ``comparison/``):
@@ -86,19 +86,10 @@ from ..checkpoint import atomic_write_bytes
 from ..errors import UserError
 from algorithms import controller_size
 
+from ..json_files import write_json
 from ..metrics import controller_key, forward_transfer_area
-from ..rundir import (
-    BASELINES_OFF,
-    Run,
-    RunDir,
-    config_key,
-    configuration_of,
-    describe_config,
-    group_runs,
-    is_run_dir,
-    load_runs,
-    write_json,
-)
+from ..rundir import RunDir
+from ..runs import BASELINES_OFF, Run, config_key, configuration_of, describe_config, group_runs, is_run_dir, load_runs
 from ..schedule import schedule_of
 from .model_specific import (CRITERION, given_choices, model_specific_label, model_specific_report,
                              parse_per_seed_lambda, select_model_specific)
@@ -144,7 +135,7 @@ def baseline_settings(config: dict[str, Any]) -> dict[str, Any]:
     """The settings ``--baseline`` matches, by name: RunConfig's configuration settings (``algo``,
     ``reg``, ``schedule``, ``generations``, ...), the algorithm's options by their own names
     (``genetics``, ``sigma``, ``importance``) and the environment's as ``env.NAME``
-    (``rundir.configuration_of``: as resolved, regulariser options dropped at lambda 0)."""
+    (``runs.configuration_of``: as resolved, regulariser options dropped at lambda 0)."""
     settings: dict[str, Any] = {}
     for key, value in configuration_of(config).items():
         if key in ("env", "env_resolved"):

@@ -17,7 +17,7 @@ from envs import ConfigError
 from ..config import PRESETS, RunConfig, load_tasks, load_toml, resolve
 from ..errors import UserError
 from ..options import flag, parse_value, schema
-from ..rundir import check_run_name
+from ..run_names import check_run_name
 from .flags import NESTED
 
 RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in NESTED]

@@ -21,7 +21,7 @@ import re
 from typing import Any
 
 from ..errors import UserError
-from ..rundir import configuration_of, describe_config
+from ..runs import configuration_of, describe_config
 from .tables import OVERVIEW, SELECTION_TIME, Estimate, cell, csv_rows, estimates, overview_row, section, table
 
 CRITERION = "C_top(phase 1) + R_top(task of phase 0 at end of phase 1)"

@@ -1,9 +1,9 @@
 """``python -m lifelong_evo plot RUN... [--out DIR]``: the paper's figures as PNG (matplotlib, Agg).
 
 It reads run directories through ``lifelong_evo.rundir`` and only draws. For each group of runs
-that share a configuration (``rundir.group_runs``: repetitions that differ in seed or speed settings),
+that share a configuration (``runs.group_runs``: repetitions that differ in seed or speed settings),
 with ``<prefix>`` = ``<algo>-<schedule>-reg<lambda>`` followed by whatever else sets the
-configuration apart from the others plotted (``rundir.config_differences``, e.g. ``-importance-ewc``):
+configuration apart from the others plotted (``runs.config_differences``, e.g. ``-importance-ewc``):
 
 ``<prefix>-retention-pop.png``  current performance C (solid) and population retention R_pop
                                  (dashed, dots where measured) per task colour over generations;
@@ -46,8 +46,10 @@ from envs import color_rgb, task_rgb
 
 from ..errors import UserError
 from ..metrics import CURRENT_LEVELS, current_curve
+from ..metrics_csv import retention_columns
 from ..networks import NetworkView, describe, task_end_views
-from ..rundir import Run, RunDir, config_differences, describe_config, group_runs, load_runs, retention_columns
+from ..rundir import RunDir
+from ..runs import Run, config_differences, describe_config, group_runs, load_runs
 from ..schedule import distinct_tasks, schedule_of
 from .tables import sorted_groups
 

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..errors import UserError, one_line, terminating_as_interrupt
-from ..rundir import usable_cpus
+from ..provenance import usable_cpus
 
 CONNECT_TIMEOUT_S = 5.0
 """How long the sweep waits for a cluster's address to answer before giving up."""

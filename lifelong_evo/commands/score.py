@@ -26,11 +26,13 @@ from algorithms import policy_from_export
 from envs import ConfigError, numerics
 
 from ..config import RunConfig, resolve
-from ..errors import UserError
+from ..errors import RunDirError, UserError
 from ..held_out import score_controllers
+from ..json_files import read_json
 from ..metrics import held_out_summary, parse_controller_key
 from ..options import parse_value, plain
-from ..rundir import RunDir, RunDirError, find_run_dirs, read_json
+from ..rundir import RunDir
+from ..runs import find_run_dirs
 from ..schedule import distinct_tasks
 from .flags import parse_assignments
 

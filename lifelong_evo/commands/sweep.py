@@ -21,7 +21,7 @@ and ``ray.log`` (Ray's messages).
 ``--only PATTERN`` runs only the trials whose names match one of the shell patterns (the part of a
 grid meant for this machine) and leaves the others as they are. Running the same command again
 skips finished trials and resumes unfinished ones from their checkpoints (``--overwrite``
-restarts every trial picked; like run's, it deletes only a directory that lifelong-evo wrote). Each trial holds its run directory's lock while it runs (``rundir.RunLock``):
+restarts every trial picked; like run's, it deletes only a directory that lifelong-evo wrote). Each trial holds its run directory's lock while it runs (``run_lock.RunLock``):
 a trial another process is running is refused before anything is written. A failed trial is
 recorded and the others go on; Ctrl-C cancels the running trials (their checkpoints are kept)
 and exits with 130, SIGTERM likewise with 143. Before anything is written, the trials that would
@@ -69,20 +69,14 @@ from envs import ConfigError
 from .. import loop, memory
 from ..checkpoint import atomic_write_bytes
 from ..config import RunConfig
-from ..errors import UserError, interrupted_status, one_line
+from ..errors import RunDirError, UserError, interrupted_status, one_line
+from ..json_files import read_json, write_json
 from ..options import bounded, plain
-from ..rundir import (
-    SWEEP_FILE,
-    RunDir,
-    RunDirError,
-    RunDirInUseError,
-    check_out_folder,
-    find_run_dirs,
-    read_json,
-    run_directory_around,
-    usable_cpus,
-    write_json,
-)
+from ..provenance import usable_cpus
+from ..run_lock import RunDirInUseError
+from ..run_names import check_out_folder
+from ..rundir import SWEEP_FILE, RunDir, run_directory_around
+from ..runs import find_run_dirs
 from . import ray_cluster
 from .compare import write_comparison
 from .flags import add_run_options, typed

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from ..metrics import HELD_OUT_LEVELS
-from ..rundir import Run
+from ..runs import Run
 from .statistics import seed_order, t_interval
 
 HELD_OUT, SELECTION_TIME, TRAINING = "held-out", "selection-time", "training"

@@ -1,0 +1,32 @@
+"""The JSON files of a run directory (config.json, summary.json, controllers, the marker),
+written atomically and read back as one ``RunDirError`` line where they are missing or damaged.
+What they must hold is checked by ``run_files``."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from .checkpoint import atomic_write_bytes
+from .errors import RunDirError
+
+
+def write_json(path: Path, value: Any) -> None:
+    atomic_write_bytes(path, (json.dumps(value, indent=2, default=_jsonable) + "\n").encode())
+
+
+def _jsonable(value):
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+
+
+def read_json(path: Path) -> Any:
+    try:
+        return json.loads(Path(path).read_text())
+    except (FileNotFoundError, NotADirectoryError):
+        raise RunDirError(f"{path} does not exist: is this a run directory?") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise RunDirError(f"cannot read {path}: {getattr(error, 'strerror', None) or error}") from None
+    except json.JSONDecodeError as error:
+        raise RunDirError(f"{path} is not valid JSON ({error})") from None
