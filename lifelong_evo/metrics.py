@@ -34,6 +34,8 @@ from typing import Any
 
 import torch
 
+from .summary_json import SummaryLayout
+
 
 @dataclass(frozen=True)
 class FitnessStats:
@@ -117,14 +119,16 @@ def summarise(phase_names: list[str], phase_ends: list[dict[str, Any]], initial:
     ``machines``: where the generations ran (``loop.LoopState.machines``), written as they are;
     ``numerics``: the arithmetic of the fitness (``RunConfig.numerics``); ``archive``: the run
     keeps a skill archive (``RunConfig.archive``), which the held-out block scores."""
-    summary: dict[str, Any] = {"phases": phase_names[:len(phase_ends)], "wall_time_s": wall_time_s,
-                               **({"machines": machines} if machines else {}),
-                               **({"numerics": numerics} if numerics else {}),
-                               **({"first_task_from": first_task_from} if first_task_from else {}),
-                               "current": [end["C"] for end in phase_ends],
-                               "current_top": [end["R_top"][end["task"]] for end in phase_ends], "forgetting": []}
+    keys = SummaryLayout
+    summary: dict[str, Any] = {keys.PHASES: phase_names[:len(phase_ends)], keys.WALL_TIME: wall_time_s,
+                               **({keys.MACHINES: machines} if machines else {}),
+                               **({keys.NUMERICS: numerics} if numerics else {}),
+                               **({keys.FIRST_TASK_FROM: first_task_from} if first_task_from else {}),
+                               keys.CURRENT: [end["C"] for end in phase_ends],
+                               keys.CURRENT_TOP: [end["R_top"][end["task"]] for end in phase_ends],
+                               keys.FORGETTING: []}
     if has_centre:
-        summary["centre_current"] = [end["R_centre"][end["task"]] for end in phase_ends]
+        summary[keys.CENTRE_CURRENT] = [end["R_centre"][end["task"]] for end in phase_ends]
     for i, end in enumerate(phase_ends):
         for earlier in _earlier_tasks(phase_names, i):
             s = max(j for j in range(i) if phase_names[j] == earlier)
@@ -135,16 +139,16 @@ def summarise(phase_names: list[str], phase_ends: list[dict[str, Any]], initial:
             if has_centre:
                 row["R_centre"] = end["R_centre"][earlier]
                 row["F_centre"] = phase_ends[s]["R_centre"][earlier] - end["R_centre"][earlier]
-            summary["forgetting"].append(row)
+            summary[keys.FORGETTING].append(row)
     if len(phase_ends) == len(phase_names):
         for level in ("pop", "top"):
             matrix = [[end[f"R_{level}"][name] for name in phase_names] for end in phase_ends]
-            summary[f"R_{level}"] = matrix
+            summary[keys.matrix(level)] = matrix
             summary.update(_transfer(matrix, [initial["pop"][name] for name in phase_names], level))
     if stability_gap is not None:
-        summary["stability_gap"] = stability_gap
+        summary[keys.STABILITY_GAP] = stability_gap
     if held_out:
-        summary["held_out"] = held_out_summary(phase_names, held_out, held_out_episodes, archive)
+        summary[keys.HELD_OUT] = held_out_summary(phase_names, held_out, held_out_episodes, archive)
     return summary
 
 
@@ -196,13 +200,14 @@ def held_out_summary(phase_names: list[str], scores: dict[str, dict[str, float]]
     while finished < len(phase_names) and controller_key(finished, phase_names[finished], "top") in scores:
         finished += 1
     ordered = {key: scores[key] for key in sorted(scores, key=_controller_order)}  # the same bytes however scored
-    block: dict[str, Any] = {"episodes": episodes, "phases": phase_names[:finished], "scores": ordered}
+    keys = SummaryLayout
+    block: dict[str, Any] = {keys.EPISODES: episodes, keys.PHASES: phase_names[:finished], keys.SCORES: ordered}
     kinds = [kind for kind in HELD_OUT_LEVELS
              if all(controller_key(i, phase_names[i], kind) in scores for i in range(finished))] if finished else []
     for kind in kinds:
         level = HELD_OUT_LEVELS[kind]
         block[f"current_{level}"] = [scores[controller_key(i, phase_names[i], kind)][phase_names[i]] for i in range(finished)]
-    block["forgetting"] = []
+    block[keys.FORGETTING] = []
     for i in range(finished):
         for earlier in _earlier_tasks(phase_names, i):
             s = max(j for j in range(i) if phase_names[j] == earlier)
@@ -212,21 +217,22 @@ def held_out_summary(phase_names: list[str], scores: dict[str, dict[str, float]]
                 kept = scores[controller_key(s, phase_names[s], kind)][earlier]
                 now = scores[controller_key(i, phase_names[i], kind)][earlier]
                 row.update({f"C_{level}": kept, f"R_{level}": now, f"F_{level}": kept - now})
-            block["forgetting"].append(row)
+            block[keys.FORGETTING].append(row)
     if finished == len(phase_names):
         for kind in kinds:
             level = HELD_OUT_LEVELS[kind]
             matrix = [[scores[controller_key(i, phase_names[i], kind)][name] for name in phase_names]
                       for i in range(finished)]
-            block[f"R_{level}"] = matrix
+            block[keys.matrix(level)] = matrix
             initial = scores.get(controller_key(None, None, kind))
             transfer = _transfer(matrix, [initial[name] for name in phase_names] if initial else None, level)
             block.update(transfer)
     if archive and finished:
         latest = {name: i for i, name in enumerate(phase_names[:finished])}  # each task's last finished phase
-        block["archive"] = {name: {"controller": controller_key(i, name, "top"),
-                                   "score": scores[controller_key(i, name, "top")][name]} for name, i in latest.items()}
-        block["archive_mean"] = sum(kept["score"] for kept in block["archive"].values()) / len(latest)
+        block[keys.ARCHIVE] = {name: {"controller": controller_key(i, name, "top"),
+                                      "score": scores[controller_key(i, name, "top")][name]}
+                               for name, i in latest.items()}
+        block[keys.ARCHIVE_MEAN] = sum(kept["score"] for kept in block[keys.ARCHIVE].values()) / len(latest)
     return block
 
 
@@ -243,10 +249,12 @@ def _transfer(matrix: list[list[float]], baseline: list[float] | None, level: st
     T = len(matrix)
     acc = sum(matrix[T - 1]) / T
     if T < 2:
-        return {f"ACC_{level}": acc, f"BWT_{level}": None, f"FWT_{level}": None}
+        return {SummaryLayout.transfer("ACC", level): acc, SummaryLayout.transfer("BWT", level): None,
+                SummaryLayout.transfer("FWT", level): None}
     bwt = sum(matrix[T - 1][j] - matrix[j][j] for j in range(T - 1)) / (T - 1)
     fwt = None if baseline is None else sum(matrix[j - 1][j] - baseline[j] for j in range(1, T)) / (T - 1)
-    return {f"ACC_{level}": acc, f"BWT_{level}": bwt, f"FWT_{level}": fwt}
+    return {SummaryLayout.transfer("ACC", level): acc, SummaryLayout.transfer("BWT", level): bwt,
+            SummaryLayout.transfer("FWT", level): fwt}
 
 
 CURRENT_COLUMNS = {"pop": "best", "top": "top", "centre": "centre"}

@@ -35,15 +35,12 @@ from .config import RunConfig
 from .errors import RunDirError
 from .options import parse_value, schema
 from .schedule import ScheduleError
+from .summary_json import SummaryLayout
 
 FIX = "restore it from a copy of the run, or run the run again"
 """The way out for a damaged file: the toolkit wrote it, so only another copy can mend it."""
 TABLES = ("env", "algo_options", "tasks")
 """config.json's settings that are objects of options (every other one is a single value)."""
-LEVELS = ("pop", "top", "centre", "best_sample")
-"""The controllers whose figures summary.json and its held-out block hold (each has some of them)."""
-PHASE_FIGURES = ("current", "centre_current", *(f"current_{level}" for level in LEVELS))
-"""summary.json's (and its held-out block's) lists with a figure per ended phase."""
 
 
 def _shown(value: Any) -> str:
@@ -111,8 +108,8 @@ def check_summary(values: Any, path: Path, config: RunConfig) -> dict[str, Any]:
     if not isinstance(values, dict):
         raise RunDirError(f"{path} holds {_kind(values)}, not a JSON object of a run's figures: {FIX}")
     schedule = [phase.name for phase in config.phases()]
-    phases = values.get("phases")
-    where = f"{path}, key 'phases'"
+    phases = values.get(SummaryLayout.PHASES)
+    where = f"{path}, key {SummaryLayout.PHASES!r}"
     if not isinstance(phases, list) or not all(isinstance(task, str) for task in phases):
         raise RunDirError(f"{where}: {_shown(phases)} is not a list of task names: {FIX}")
     if len(phases) > len(schedule):
@@ -123,38 +120,40 @@ def check_summary(values: Any, path: Path, config: RunConfig) -> dict[str, Any]:
             raise RunDirError(f"{where}, item {index}: {task!r}, where config.json's schedule {config.schedule!r} "
                               f"has {planned!r}: the summary is another run's or damaged: {FIX}")
     _check_figures(values, f"{path}", schedule)
-    held = values.get("held_out")
+    held = values.get(SummaryLayout.HELD_OUT)
     if held is not None:
-        _check_held_out(held, f"{path}, key 'held_out'", schedule)
-    gaps = values.get("stability_gap")
+        _check_held_out(held, f"{path}, key {SummaryLayout.HELD_OUT!r}", schedule)
+    gaps = values.get(SummaryLayout.STABILITY_GAP)
     if gaps is not None:
-        for index, entry in enumerate(_list(gaps, f"{path}, key 'stability_gap'")):
-            at = f"{path}, key 'stability_gap', item {index}"
+        for index, entry in enumerate(_list(gaps, f"{path}, key {SummaryLayout.STABILITY_GAP!r}")):
+            at = f"{path}, key {SummaryLayout.STABILITY_GAP!r}, item {index}"
             _row(entry, at, ("after_switch_to", range(1, len(schedule))), schedule)
     return values
 
 
 def _check_figures(part: dict[str, Any], where: str, schedule: list[str]) -> None:
     """The training figures of summary.json, or of its held-out block (``where`` names which):
-    the ``PHASE_FIGURES`` lists, forgetting rows (each at the end of a phase after the first),
+    the ``SummaryLayout.PHASE_FIGURES`` lists, forgetting rows (each at the end of a phase after the first),
     R matrices, transfer metrics and the wall time."""
-    for key in PHASE_FIGURES:
+    for key in SummaryLayout.PHASE_FIGURES:
         if key in part:
             for index, value in enumerate(_list(part[key], f"{where}, key {key!r}")):
                 _figure(value, f"{where}, key {key!r}, item {index}")
-    for index, row in enumerate(_list(part.get("forgetting", []), f"{where}, key 'forgetting'")):
-        _row(row, f"{where}, key 'forgetting', item {index}", ("at_end_of", range(1, len(schedule))), schedule)
-    for level in LEVELS:
-        key = f"R_{level}"
+    forgetting = SummaryLayout.FORGETTING
+    for index, row in enumerate(_list(part.get(forgetting, []), f"{where}, key {forgetting!r}")):
+        _row(row, f"{where}, key {forgetting!r}, item {index}", ("at_end_of", range(1, len(schedule))), schedule)
+    for level in SummaryLayout.LEVELS:
+        key = SummaryLayout.matrix(level)
         if key in part:
             for i, row in enumerate(_list(part[key], f"{where}, key {key!r}")):
                 for j, value in enumerate(_list(row, f"{where}, key {key!r}, row {i}")):
                     _figure(value, f"{where}, key {key!r}, row {i}, item {j}")
-        for metric in ("ACC", "BWT", "FWT"):
-            if f"{metric}_{level}" in part:
-                _figure(part[f"{metric}_{level}"], f"{where}, key '{metric}_{level}'")
-    if "wall_time_s" in part:
-        _figure(part["wall_time_s"], f"{where}, key 'wall_time_s'")
+        for metric in SummaryLayout.TRANSFER:
+            key = SummaryLayout.transfer(metric, level)
+            if key in part:
+                _figure(part[key], f"{where}, key {key!r}")
+    if SummaryLayout.WALL_TIME in part:
+        _figure(part[SummaryLayout.WALL_TIME], f"{where}, key {SummaryLayout.WALL_TIME!r}")
 
 
 def _check_held_out(held: Any, where: str, schedule: list[str]) -> None:
@@ -162,14 +161,14 @@ def _check_held_out(held: Any, where: str, schedule: list[str]) -> None:
     scores of each controller per task and its figures (``_check_figures``)."""
     if not isinstance(held, dict):
         raise RunDirError(f"{where}: {_shown(held)} is {_kind(held)}, not an object: {FIX}")
-    episodes = held.get("episodes")
+    episodes = held.get(SummaryLayout.EPISODES)
     if not _is_integer(episodes) or episodes < 1:
         raise RunDirError(f"{where}, key 'episodes': {_shown(episodes)} is not a positive integer: {FIX}")
-    phases = held.get("phases")
+    phases = held.get(SummaryLayout.PHASES)
     if not isinstance(phases, list) or phases != schedule[:len(phases)]:
         raise RunDirError(f"{where}, key 'phases': {_shown(phases)} is not the first tasks of config.json's "
                           f"schedule {schedule}: {FIX}")
-    scores = held.get("scores", {})
+    scores = held.get(SummaryLayout.SCORES, {})
     if not isinstance(scores, dict):
         raise RunDirError(f"{where}, key 'scores': {_shown(scores)} is {_kind(scores)}, not an object: {FIX}")
     for name, by_task in scores.items():

@@ -40,6 +40,7 @@ from .provenance import library_versions, package_version
 from .run_files import check_config, check_controller, check_summary
 from .run_lock import LOCK, RunDirInUseError, RunLock, held_by
 from .run_names import check_out_folder, check_run_name
+from .summary_json import SUMMARY_FILE
 
 RESOLVED = (("env", "env_resolved"), ("algo_options", "algo_options_resolved"))
 """config.json's settings as given, each with its resolved form written beside it."""
@@ -78,7 +79,7 @@ class RunDir:
         self.config = self.path / "config.json"
         self.metrics = self.path / METRICS_FILE
         self.species = self.path / SPECIES_FILE
-        self.summary = self.path / "summary.json"
+        self.summary = self.path / SUMMARY_FILE
         self.recording = self.path / "recording.rrd"
         self.checkpoints = self.path / "checkpoints"
         self.controllers = self.path / "controllers"

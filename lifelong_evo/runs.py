@@ -25,6 +25,7 @@ from .metrics_csv import METRICS_FILE, SPECIES_COLUMNS, SPECIES_FILE, read_metri
 from .run_files import check_config, check_metrics, check_summary
 from .rundir import RESOLVED, RESOLVED_KEYS
 from .schedule import schedule_of
+from .summary_json import SUMMARY_FILE, SummaryLayout
 
 
 @dataclass
@@ -51,7 +52,7 @@ class Run:
     def finished(self) -> bool:
         """Every task of the schedule has ended (summary.json names them all)."""
         schedule = schedule_of(self.config)
-        return len(self.summary.get("phases", [])) == len(schedule)
+        return len(self.summary.get(SummaryLayout.PHASES, [])) == len(schedule)
 
     def metrics_rows(self) -> list[dict[str, str]]:
         """metrics.csv's rows (none where the run has no metrics.csv), checked by ``read_metrics``
@@ -164,7 +165,7 @@ def describe_config(config: dict[str, Any], others: list[dict[str, Any]] | None 
 
 
 def is_run_dir(path: Path) -> bool:
-    return (path / "config.json").is_file() and (path / "summary.json").is_file()
+    return (path / "config.json").is_file() and (path / SUMMARY_FILE).is_file()
 
 
 def find_run_dirs(paths) -> list[Path]:
@@ -193,7 +194,7 @@ def load_run(path: Path, with_metrics: bool = True) -> Run:
     written = read_json(path / "config.json")
     settings = check_config(written, path / "config.json", RESOLVED_KEYS)
     config = {**written, **{key: getattr(settings, key) for key in written if key not in RESOLVED_KEYS}}
-    summary = check_summary(read_json(path / "summary.json"), path / "summary.json", settings)
+    summary = check_summary(read_json(path / SUMMARY_FILE), path / SUMMARY_FILE, settings)
     run = Run(path=path, config=config, summary=summary)
     if with_metrics:
         run.metrics = run.metrics_rows()

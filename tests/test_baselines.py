@@ -260,7 +260,7 @@ def test_a_mixed_run_writes_the_current_tasks_own_curve_and_forward_transfer_rea
 
 
 def test_the_figures_draw_a_mixed_runs_own_current_curve(tmp_path):
-    from lifelong_evo.commands.plots import current_by_task, stack_current
+    from lifelong_evo.analysis.figures import current_by_task, stack_current
     from lifelong_evo.runs import load_runs
 
     run_dir = _run(tmp_path, "rehearsal", schedule="red:2,green:3", evals=4, rehearsal=0.5, gap_window=0)
@@ -289,7 +289,7 @@ def test_controller_size_counts_what_a_controller_is_made_of():
 
 
 def test_compare_sets_sizes_and_budgets_side_by_side(tmp_path):
-    from lifelong_evo.commands.compare import compare_table
+    from lifelong_evo.analysis.comparison import compare_table
 
     root = tmp_path / "runs"
     for algo in ("neat", "sep-cmaes"):
@@ -315,7 +315,7 @@ def test_compare_sets_sizes_and_budgets_side_by_side(tmp_path):
     assert cells["sep-cmaes"][4] == f"parameters {42 * 16 + 17 * 3:.2f} [{42 * 16 + 17 * 3:.2f}, {42 * 16 + 17 * 3:.2f}]"
     assert cells["neat"][4].startswith("nodes ") and f"; connections {sum(connections) / 2:.2f} [" in cells["neat"][4]
     # how often an ES's top individual is its centre, from metrics.csv's top and centre columns
-    from lifelong_evo.commands.tables import top_is_centre_name
+    from lifelong_evo.analysis.tables import top_is_centre_name
     from lifelong_evo.metrics_csv import read_metrics
 
     shares = []

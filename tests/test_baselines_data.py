@@ -18,7 +18,7 @@ import pytest
 
 from lifelong_evo.commands.cli import build_parser
 from lifelong_evo.commands.grid import build_grid
-from lifelong_evo.commands.statistics import paired_difference
+from lifelong_evo.analysis.statistics import paired_difference
 from lifelong_evo.config import RunConfig
 from lifelong_evo.rundir import RunDir
 from tests.run_data import assert_keeps_what_held_out_scoring_needs, first_task_rows

@@ -93,3 +93,18 @@ def test_gymnasium_example(capsys):
     module.main(steps=20, num_envs=2)
     out = capsys.readouterr().out
     assert "one environment" in out and "2 environments in one torch batch" in out
+
+
+def test_analysis_example_prints_compares_tables(capsys):
+    """The analysis from Python gives the same tables ``compare`` prints, on the data the docs keep."""
+    from lifelong_evo.commands import compare
+    from lifelong_evo.commands.cli import build_parser
+
+    spec = importlib.util.spec_from_file_location("analysis_example", EXAMPLES / "analysis.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    module.main([str(module.DATA)])
+    out = capsys.readouterr().out
+    expected = compare.requested_comparison(build_parser().parse_args(["compare", str(module.DATA)])).markdown
+    assert out.startswith(expected + "\n")
+    assert "red R_top at the end of green, neat reg=11 red-green-red minus neat reg=0 red-green-red" in out

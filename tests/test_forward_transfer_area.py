@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from lifelong_evo.commands.compare import compare_table, scratch_partners
+from lifelong_evo.analysis.comparison import compare_table, scratch_partners
 from lifelong_evo.metrics import forward_transfer_area
 from lifelong_evo.runs import load_runs
 

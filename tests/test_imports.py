@@ -1,5 +1,5 @@
-"""The layering, read from the source with ``ast`` (nothing is imported): commands -> run core ->
-algorithms and envs. The environment and the optimisers never import the lifelong tools, the run
+"""The layering, read from the source with ``ast`` (nothing is imported): commands -> analysis ->
+run core -> algorithms and envs. The environment and the optimisers never import the lifelong tools, the run
 core (``lifelong_evo`` outside ``commands/``) never imports a command, only the Ray module imports
 Ray, and no module of the project imports, directly or through others, a module that imports it,
 counting the imports inside functions too."""
@@ -118,6 +118,19 @@ def test_callers_import_a_moved_name_from_its_own_module():
                 if taken:
                     offending[name] = taken
     assert not offending
+
+
+def test_the_analysis_stands_between_the_run_core_and_the_commands():
+    """``lifelong_evo.analysis`` (statistics, tables, figures) imports no command, and the run core
+    imports none of it: the verbs call it, and so can a notebook."""
+    analysis = {name for name in MODULES if name.startswith("lifelong_evo.analysis")}
+    assert {"lifelong_evo.analysis.comparison", "lifelong_evo.analysis.figures"} <= analysis
+    offending = {name: sorted(t for t in GRAPH[name] if t.startswith("lifelong_evo.commands")) for name in analysis}
+    assert not {k: v for k, v in offending.items() if v}
+    core = [name for name in MODULES if name.split(".")[0] == "lifelong_evo" and name not in ENTRY_POINTS
+            and not name.startswith(("lifelong_evo.commands", "lifelong_evo.analysis"))]
+    offending = {name: sorted(t for t in GRAPH[name] if t in analysis) for name in core}
+    assert not {k: v for k, v in offending.items() if v}
 
 
 def test_only_the_ray_module_imports_ray():

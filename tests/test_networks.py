@@ -11,7 +11,7 @@ import torch
 
 from algorithms import make_optimizer
 from algorithms.mlp import n_parameters
-from lifelong_evo.commands import plots
+from lifelong_evo.analysis import figures as plots
 from lifelong_evo.commands.cli import main
 from lifelong_evo.networks import network_view, reference_name, task_end_views
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lifelong_evo.commands import plots
+from lifelong_evo.analysis import figures as plots
 from lifelong_evo.commands.cli import main as cli_main
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -113,7 +113,7 @@ def test_compare_adds_the_model_specific_lambda_where_lambda_varies(sweep, tmp_p
 def test_plot_series_follow_metrics(sweep):
     """The curves drawn are metrics.csv's: the current task's best (NaN elsewhere), the retention
     where measured, stacked over the two seeds."""
-    from lifelong_evo.commands.plots import current_by_task, retention_by_task
+    from lifelong_evo.analysis.figures import current_by_task, retention_by_task
     from lifelong_evo.metrics_csv import read_metrics
     from lifelong_evo.runs import group_runs, load_run
 
@@ -137,7 +137,7 @@ def test_plot_series_follow_metrics(sweep):
 
 
 def test_compare_groups_configurations_and_matches_hand_computation(sweep, tmp_path, capsys):
-    from lifelong_evo.commands.compare import compare_table
+    from lifelong_evo.analysis.comparison import compare_table
 
     rows, markdown = compare_table([sweep])
     means = [r for r in rows if r["statistic"] == "mean"]
@@ -228,8 +228,8 @@ def test_the_papers_table_has_a_line_per_configuration(sweep):
     over the seeds: per deployed controller (held-out, as these runs have the block) red learnt,
     green learnt, red's retention and forgetting at green's end, red when it returns, transfer;
     for the population (training episodes) the same and the wall time per run."""
-    from lifelong_evo.commands.compare import compare_table
-    from lifelong_evo.commands.tables import Estimate
+    from lifelong_evo.analysis.comparison import compare_table
+    from lifelong_evo.analysis.tables import Estimate
 
     _, markdown = compare_table([sweep])
     assert ("| configuration | n seeds | episodes | red C_top | green C_top | red R_top | red F_top | "
@@ -259,7 +259,7 @@ def test_the_papers_table_has_a_line_per_configuration(sweep):
 def test_unfinished_runs_are_counted_as_such(sweep, tmp_path):
     """A sweep read while it runs: a run that has not ended every task is named unfinished
     beside its configuration's seed count, since its later metrics are missing from the means."""
-    from lifelong_evo.commands.compare import compare_table
+    from lifelong_evo.analysis.comparison import compare_table
 
     copy = tmp_path / "sweep"
     shutil.copytree(sweep, copy)

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from lifelong_evo.commands import plots
-from lifelong_evo.commands.compare import compare_table
-from lifelong_evo.commands.statistics import t_interval
-from lifelong_evo.commands.tables import Estimate
+from lifelong_evo.analysis import figures as plots
+from lifelong_evo.analysis.comparison import compare_table
+from lifelong_evo.analysis.statistics import t_interval
+from lifelong_evo.analysis.tables import Estimate
 from lifelong_evo.metrics import stability_gap, summarise
 from lifelong_evo.metrics_csv import MetricsLayout, read_metrics
 

@@ -1,4 +1,4 @@
-"""The statistics of ``compare`` (``lifelong_evo.commands.statistics``) against hand-computed values, and
+"""The statistics of ``compare`` (``lifelong_evo.analysis.statistics``) against hand-computed values, and
 ``compare``'s use of them on small made-up run directories: pairing by seed, Welch, the baseline,
 held-out against training figures, the order of the seeds."""
 from __future__ import annotations
@@ -13,7 +13,7 @@ import pytest
 from scipy import stats
 
 from lifelong_evo.commands.cli import main as cli_main
-from lifelong_evo.commands.statistics import (
+from lifelong_evo.analysis.statistics import (
     paired_difference,
     paired_seeds_for_power,
     sign_flip_p,
@@ -410,7 +410,7 @@ def test_the_paper_genetics_study(capsys):
     selection-time (the runs have no held-out block): the issue's t-intervals, R_top +6.8
     [-4.1, 17.8] and green C_top -10.4 [-23.4, 2.7]; the exact sign-flip p-values are 4/32 and
     2/32 (every difference has the same sign but one zero, and green's are all negative)."""
-    from lifelong_evo.commands.compare import compare_table
+    from lifelong_evo.analysis.comparison import compare_table
 
     _, markdown = compare_table([REPO / "docs" / "data" / "paper-genetics"])
     assert "| red R_top | selection-time | +6.84 [-4.15, +17.83] | 0.125 | +0.77 | 5 | 16 |" in markdown
@@ -418,7 +418,7 @@ def test_the_paper_genetics_study(capsys):
 
 
 def test_holm_against_its_definition_worked_by_hand():
-    from lifelong_evo.commands.statistics import holm
+    from lifelong_evo.analysis.statistics import holm
 
     # sorted 0.005, 0.01, 0.03, 0.04 -> 4 x 0.005, 3 x 0.01, max(that, 2 x 0.03), max(that, 1 x 0.04)
     assert holm([0.01, 0.04, 0.03, 0.005]) == pytest.approx([0.03, 0.06, 0.06, 0.02])
@@ -459,8 +459,8 @@ def test_the_optimism_of_a_lambda_chosen_per_seed_worked_by_hand():
     and lambda 11 28 / 27; seed 2, lambda 0 25 / 24 and lambda 11 29 / 22. Chosen: lambda 0 at seed
     1, 11 at seed 2: 29.5 selection-time, 24.0 held-out, differences 4 and 7; lambda 0 on every
     seed: 4 and 1; lambda 11: 1 and 7."""
-    from lifelong_evo.commands.model_specific import optimism_rows, select_model_specific
-    from lifelong_evo.commands.tables import Estimate
+    from lifelong_evo.analysis.model_specific import optimism_rows, select_model_specific
+    from lifelong_evo.analysis.tables import Estimate
 
     def summary(train: float, held: float) -> dict:
         part = lambda score: {"phases": ["red", "green", "red"], "current_top": [0.0, score - 5.0, 0.0],  # noqa: E731

@@ -14,7 +14,7 @@ import pytest
 from envs import ForagingConfig
 from lifelong_evo.commands.cli import build_parser, main
 from lifelong_evo.commands.grid import build_grid
-from lifelong_evo.commands.model_specific import (
+from lifelong_evo.analysis.model_specific import (
     model_specific_label,
     model_specific_report,
     select_model_specific,

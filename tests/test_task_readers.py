@@ -3,7 +3,7 @@
 ``compare`` and the recording's nest outline."""
 from __future__ import annotations
 
-from lifelong_evo.commands import plots
+from lifelong_evo.analysis import figures as plots
 from lifelong_evo.commands.cli import main
 from lifelong_evo.commands.replay import replay
 from lifelong_evo.commands.rerun_recorder import drop_zone_outline

@@ -16,20 +16,20 @@ from algorithms import UnknownAlgorithmError
 from envs import ConfigError
 
 from .. import loop, memory
+from ..analysis.report import summary_table
 from ..config import configure
 from ..errors import Parser, UserError, interrupted_status, terminating_as_interrupt
 from ..options import plain
 from ..progress import MODES
 from ..rundir import RunDir
-from . import compare, option_list, plots, replay, score, sweep, view
+from . import compare, option_list, plot, replay, score, sweep, view
 from .flags import add_run_options, stated_settings
-from .report import summary_table
 from .rerun_recorder import RerunRecorder
 
 VERBS = {
     "replay": (replay, "Run a stored controller on fresh episodes and record them."),
     "view": (view, "Open a run's recording in the Rerun viewer."),
-    "plot": (plots, "Write the paper's figures for runs as PNG."),
+    "plot": (plot, "Write the paper's figures for runs as PNG."),
     "compare": (compare, "Tables of configurations over seeds, each against its baseline, and overlay figures."),
     "score": (score, "Score runs' exported controllers on the held-out episodes (summary.json's held_out block)."),
     "sweep": (sweep, "Grid of runs (algorithms x lambda x seeds x ...) on Ray."),

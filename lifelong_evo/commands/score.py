@@ -34,6 +34,7 @@ from ..options import parse_value, plain
 from ..rundir import RunDir
 from ..runs import find_run_dirs
 from ..schedule import distinct_tasks
+from ..summary_json import SummaryLayout
 from .flags import parse_assignments
 
 HELD_OUT_EPISODES = RunConfig.held_out_episodes
@@ -85,8 +86,8 @@ def score_run(run_dir: RunDir, episodes: int | None = None) -> dict[str, Any]:
     phases = config.phases()
     scores = score_controllers(controllers, config.env_config(), distinct_tasks(phases), episodes)
     block = held_out_summary([phase.name for phase in phases], scores, episodes, config.archive)
-    summary = {key: value for key, value in (run_dir.checked_summary() or {}).items() if key != "held_out"}
-    run_dir.write_summary({**summary, "held_out": block})
+    summary = {key: value for key, value in (run_dir.checked_summary() or {}).items() if key != SummaryLayout.HELD_OUT}
+    run_dir.write_summary({**summary, SummaryLayout.HELD_OUT: block})
     return block
 
 

@@ -28,7 +28,7 @@ and exits with 130, SIGTERM likewise with 143. Before anything is written, the t
 run at once here must fit in this machine's memory (``lifelong_evo.memory``; on a cluster each
 trial checks its node; ``--no-memory-check`` lifts it).
 
-The comparison adds the model-specific lambda ("m.s. reg", ``lifelong_evo.commands.compare``) where the
+The comparison adds the model-specific lambda ("m.s. reg", ``lifelong_evo.analysis.comparison``) where the
 grid varies lambda: per configuration without lambda and seed, the lambda whose top individual is
 best at the second task and keeps the first (``model_specific_lambda.md``/``.json``).
 
@@ -67,6 +67,8 @@ from typing import Any, Sequence
 from envs import ConfigError
 
 from .. import loop, memory
+from ..analysis.comparison import write_comparison
+from ..analysis.report import duration
 from ..checkpoint import atomic_write_bytes
 from ..config import RunConfig
 from ..errors import RunDirError, UserError, interrupted_status, one_line
@@ -77,11 +79,10 @@ from ..run_lock import RunDirInUseError
 from ..run_names import check_out_folder
 from ..rundir import SWEEP_FILE, RunDir, run_directory_around
 from ..runs import find_run_dirs
+from ..summary_json import SummaryLayout
 from . import ray_cluster
-from .compare import write_comparison
 from .flags import add_run_options, typed
 from .grid import Grid, Trial, build_grid, default_sweep_name
-from .report import duration
 from .rerun_recorder import RerunRecorder
 
 STATUSES = ("done", "failed", "pending")
@@ -202,7 +203,7 @@ def run_trial(config_values: dict[str, Any], path: str, overwrite: bool, memory_
         others = [s for s in first_task_sources if not RunDir(s).is_same_directory(run_dir)]
         source = first_task_source(RunConfig.from_dict(config_values), others, outdated_sources) if new else None
         summary = loop.run_alone(trial_run(config_values, path, overwrite, source))
-        return {"status": "done", "error": "", "wall_time_s": summary["wall_time_s"],
+        return {"status": "done", "error": "", "wall_time_s": summary[SummaryLayout.WALL_TIME],
                 "first_task_from": "" if source is None else str(source.path)}
     except Exception as error:  # noqa: BLE001 - the driver records it and goes on
         return {"status": "failed", "error": one_line(error), "wall_time_s": time.monotonic() - started}
@@ -230,7 +231,8 @@ def picked_trials(grid: Grid, patterns: Sequence[str]) -> set[str]:
 
 def is_complete(summary: dict[str, Any] | None, config: RunConfig) -> bool:
     """Whether ``summary.json`` covers every phase of the schedule (the run has finished)."""
-    return bool(summary) and len(summary.get("current", [])) == len(config.phases()) and "ACC_pop" in summary
+    return (bool(summary) and len(summary.get(SummaryLayout.CURRENT, [])) == len(config.phases())
+            and SummaryLayout.transfer("ACC", "pop") in summary)
 
 
 def trial_state(path: Path, config: RunConfig) -> tuple[str, str]:
@@ -327,56 +329,11 @@ def main(args: argparse.Namespace) -> int:
     sweep_dir = (check_out_folder(args.out) / grid.name).resolve()
     check_sweep_folder(sweep_dir)
     picked = picked_trials(grid, args.only)
-    to_run: list[Trial] = []
-    resuming: set[str] = set()
-    for trial in grid.trials:
-        restart = args.overwrite and trial.name in picked
-        state, why = ("new", "") if restart else trial_state(sweep_dir / trial.name, trial.config)
-        if state == "done":
-            summary = RunDir(sweep_dir / trial.name).read_summary()
-            trial.status, trial.wall_time_s = "done", summary["wall_time_s"]
-            trial.first_task_from = summary.get("first_task_from", "")
-        elif state == "failed":
-            trial.status, trial.error = "failed", why
-        elif trial.name in picked:
-            to_run.append(trial)
-            if state == "resume":
-                resuming.add(trial.name)
-    if args.overwrite:  # as run's, it deletes only run directories lifelong-evo wrote: each checked up front
-        for trial in to_run:
-            RunDir(sweep_dir / trial.name).check_create(overwrite=True)
-    axes = ", ".join([*(f"{k} ({len(v)})" for k, v in grid.axes.items()),
-                      *(f"{algo}: {k} ({len(v)})" for algo, (a, _) in grid.by_algo.items() for k, v in a.items())]) \
-        or "no axes"
-    _print(f"sweep {grid.name}: {len(grid.trials)} trial(s) over {axes}, preset {grid.preset}; "
-           f"{len(to_run)} to run -> {sweep_dir}")
-    for trial in grid.trials:
-        if trial.status == "done":
-            _print(f"skipped {trial.name} (done)")
-        elif trial.status == "failed":
-            _print(f"failed  {trial.name}: {trial.error}")
-        elif trial.name in resuming:
-            _print(f"resume  {trial.name} (from its last checkpoint)")
-        elif trial.name not in picked:
-            _print(f"left    {trial.name} (not picked by --only)")
+    to_run, resuming = _plan(grid, sweep_dir, picked, args.overwrite)
+    _print_plan(grid, sweep_dir, to_run, picked, resuming)
     if args.together:
         _check_together(args, to_run)
-    if args.first_task_from and not args.share_first_task:
-        raise UserError("--first-task-from names runs to share first tasks with: add --share-first-task")
-    sources: list[str] = []
-    outdated: dict[str, FileIdentity] = {}
-    if args.share_first_task:
-        if args.together:
-            raise UserError("--share-first-task starts a trial from a run that has ended its first task, but "
-                            "--together plays every trial at once: drop one of them")
-        to_run = first_task_order(to_run)
-        sources = [str(sweep_dir / t.name) for t in first_task_order(grid.trials)]
-        for folder in args.first_task_from:
-            sources += [str(path.resolve()) for path in find_run_dirs([folder])]
-        if args.overwrite:  # a restarted trial's first task, as it was before this sweep, is no source
-            restarted = {str(sweep_dir / t.name) for t in to_run}
-            outdated = {source: identity for source in sources if source in restarted
-                        and (identity := file_identity(RunDir(source).first_task_end)) is not None}
+    to_run, sources, outdated = _first_task_sources(args, grid, to_run, sweep_dir)
     if args.dry_run:
         for trial in to_run:
             _print(f"would run {trial.name}")
@@ -391,18 +348,8 @@ def main(args: argparse.Namespace) -> int:
         ray_cluster.check_token_file()
     # a cluster that cannot be joined is one error line before anything is written
     address = ray_cluster.check_cluster(args.address) if args.address and to_run else None
-    ray_settings = {"address": args.address or "local", "workers": args.workers,
-                    "gpus_per_trial": args.gpus_per_trial, "retries": args.retries}
-    new_folder = not sweep_dir.exists()
-    try:
-        sweep_dir.mkdir(parents=True, exist_ok=True)
-        write_sweep_json(sweep_dir, grid, ray_settings)
-        write_trials_csv(sweep_dir, grid)
-    except OSError as error:  # a read-only --out, or one on a file system that refuses the names
-        if new_folder:  # made just now: nothing of it is left half-made
-            shutil.rmtree(sweep_dir, ignore_errors=True)
-        raise UserError(f"cannot write the sweep's folder {sweep_dir}: {error.strerror or error}: choose another "
-                        "--out") from None
+    _write_sweep_folder(sweep_dir, grid, {"address": args.address or "local", "workers": args.workers,
+                                          "gpus_per_trial": args.gpus_per_trial, "retries": args.retries})
     interruption = None
     try:
         if to_run and args.together:
@@ -416,6 +363,96 @@ def main(args: argparse.Namespace) -> int:
         print(f"\ninterrupted: finished trials and checkpoints are kept in {sweep_dir}; "
               "run the same command again to continue", file=sys.stderr)
         return interrupted_status(interruption)
+    return _report(sweep_dir, grid)
+
+
+def _plan(grid: Grid, sweep_dir: Path, picked: set[str], overwrite: bool) -> tuple[list[Trial], set[str]]:
+    """The trials to run (those picked that are neither done nor failed; with ``overwrite`` every
+    one picked) and the names of those among them that resume; the others' states recorded on the
+    trials. With ``overwrite``, RunDirError before anything is written where a trial's directory
+    is one that ``--overwrite`` may not delete (as ``run``'s, only one lifelong-evo wrote)."""
+    to_run: list[Trial] = []
+    resuming: set[str] = set()
+    for trial in grid.trials:
+        restart = overwrite and trial.name in picked
+        state, why = ("new", "") if restart else trial_state(sweep_dir / trial.name, trial.config)
+        if state == "done":
+            summary = RunDir(sweep_dir / trial.name).read_summary()
+            trial.status, trial.wall_time_s = "done", summary[SummaryLayout.WALL_TIME]
+            trial.first_task_from = summary.get(SummaryLayout.FIRST_TASK_FROM, "")
+        elif state == "failed":
+            trial.status, trial.error = "failed", why
+        elif trial.name in picked:
+            to_run.append(trial)
+            if state == "resume":
+                resuming.add(trial.name)
+    if overwrite:
+        for trial in to_run:
+            RunDir(sweep_dir / trial.name).check_create(overwrite=True)
+    return to_run, resuming
+
+
+def _print_plan(grid: Grid, sweep_dir: Path, to_run: list[Trial], picked: set[str], resuming: set[str]) -> None:
+    """The sweep's axes and what becomes of each trial: skipped, failed, resumed or left out."""
+    axes = ", ".join([*(f"{k} ({len(v)})" for k, v in grid.axes.items()),
+                      *(f"{algo}: {k} ({len(v)})" for algo, (a, _) in grid.by_algo.items() for k, v in a.items())]) \
+        or "no axes"
+    _print(f"sweep {grid.name}: {len(grid.trials)} trial(s) over {axes}, preset {grid.preset}; "
+           f"{len(to_run)} to run -> {sweep_dir}")
+    for trial in grid.trials:
+        if trial.status == "done":
+            _print(f"skipped {trial.name} (done)")
+        elif trial.status == "failed":
+            _print(f"failed  {trial.name}: {trial.error}")
+        elif trial.name in resuming:
+            _print(f"resume  {trial.name} (from its last checkpoint)")
+        elif trial.name not in picked:
+            _print(f"left    {trial.name} (not picked by --only)")
+
+
+def _first_task_sources(args: argparse.Namespace, grid: Grid, to_run: list[Trial], sweep_dir: Path
+                        ) -> tuple[list[Trial], list[str], dict[str, FileIdentity]]:
+    """With ``--share-first-task``: the trials to run in first-task order, the runs a trial may take
+    its first task from (the sweep's trials, and the runs under ``--first-task-from``), and, with
+    ``--overwrite``, the sources whose first task is about to be replaced (no source then);
+    without it, ``to_run`` as it is and none. UserError for what cannot be shared."""
+    if args.first_task_from and not args.share_first_task:
+        raise UserError("--first-task-from names runs to share first tasks with: add --share-first-task")
+    if not args.share_first_task:
+        return to_run, [], {}
+    if args.together:
+        raise UserError("--share-first-task starts a trial from a run that has ended its first task, but "
+                        "--together plays every trial at once: drop one of them")
+    to_run = first_task_order(to_run)
+    sources = [str(sweep_dir / t.name) for t in first_task_order(grid.trials)]
+    for folder in args.first_task_from:
+        sources += [str(path.resolve()) for path in find_run_dirs([folder])]
+    outdated: dict[str, FileIdentity] = {}
+    if args.overwrite:  # a restarted trial's first task, as it was before this sweep, is no source
+        restarted = {str(sweep_dir / t.name) for t in to_run}
+        outdated = {source: identity for source in sources if source in restarted
+                    and (identity := file_identity(RunDir(source).first_task_end)) is not None}
+    return to_run, sources, outdated
+
+
+def _write_sweep_folder(sweep_dir: Path, grid: Grid, ray_settings: dict[str, Any]) -> None:
+    """The sweep's folder with sweep.json and trials.csv; UserError where it cannot be written (a
+    folder made just now is removed again: nothing of it is left half-made)."""
+    new_folder = not sweep_dir.exists()
+    try:
+        sweep_dir.mkdir(parents=True, exist_ok=True)
+        write_sweep_json(sweep_dir, grid, ray_settings)
+        write_trials_csv(sweep_dir, grid)
+    except OSError as error:  # a read-only --out, or one on a file system that refuses the names
+        if new_folder:
+            shutil.rmtree(sweep_dir, ignore_errors=True)
+        raise UserError(f"cannot write the sweep's folder {sweep_dir}: {error.strerror or error}: choose another "
+                        "--out") from None
+
+
+def _report(sweep_dir: Path, grid: Grid) -> int:
+    """The comparison of the finished trials (``aggregate``) printed with the counts; the exit
+    status: 1 where a trial failed."""
     table = aggregate(sweep_dir, grid)
     counts = {s: sum(t.status == s for t in grid.trials) for s in STATUSES}
     _print("")

@@ -1,6 +1,7 @@
-"""``python -m lifelong_evo plot RUN... [--out DIR]``: the paper's figures as PNG (matplotlib, Agg).
+"""Every figure, as PNG (matplotlib, Agg): ``plot``'s per configuration (``plot_runs``) and
+``compare``'s overlays (``overlay_figures``).
 
-It reads run directories through ``lifelong_evo.rundir`` and only draws. For each group of runs
+It reads run directories through ``lifelong_evo.runs`` and only draws. For each group of runs
 that share a configuration (``runs.group_runs``: repetitions that differ in seed or speed settings),
 with ``<prefix>`` = ``<algo>-<schedule>-reg<lambda>`` followed by whatever else sets the
 configuration apart from the others plotted (``runs.config_differences``, e.g. ``-importance-ewc``):
@@ -32,7 +33,6 @@ before the first figure is drawn: a bad one is a one-line error with nothing wri
 """
 from __future__ import annotations
 
-import argparse
 import itertools
 import os
 import re
@@ -51,6 +51,7 @@ from ..networks import NetworkView, describe, task_end_views
 from ..rundir import RunDir
 from ..runs import Run, config_differences, describe_config, group_runs, load_runs
 from ..schedule import distinct_tasks, schedule_of
+from ..summary_json import SummaryLayout
 from .tables import sorted_groups
 
 
@@ -162,7 +163,7 @@ def mark_stability_gaps(ax, group: list[Run], level: str) -> None:
     curve of several seeds need not pass through any seed's minimum."""
     label = "stability gap: lowest retention after a switch"
     for run in group:
-        for entry in run.summary.get("stability_gap") or []:
+        for entry in run.summary.get(SummaryLayout.STABILITY_GAP) or []:
             if entry.get(f"min_{level}") is not None:
                 ax.plot([entry[f"generation_{level}"]], [entry[f"min_{level}"]], linestyle="none", marker=GAP_MARKER,
                         markersize=8, color=task_color(entry["task"], run), markeredgecolor="0.1", zorder=4,
@@ -390,19 +391,6 @@ def check_writable(folder: Path) -> None:
         raise UserError(f"--out {folder}: {existing} is a file, not a folder: give a folder for the figures")
     if not os.access(existing, os.W_OK | os.X_OK):
         raise UserError(f"--out {folder}: {existing} cannot be written to: give a folder you can write to")
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("runs", nargs="+", metavar="RUN", help="run directories or folders holding them")
-    parser.add_argument("--out", default=None, metavar="DIR",
-                        help="where to write the PNGs (default: the folder that holds the runs: "
-                             "a single run's directory, a sweep's directory)")
-
-
-def main(args: argparse.Namespace) -> int:
-    for path in plot_runs(args.runs, args.out):
-        print(path)
-    return 0
 
 
 # ------------------------------------------------------------------ comparison overlays

@@ -22,6 +22,7 @@ from typing import Any
 
 from ..errors import UserError
 from ..runs import configuration_of, describe_config
+from ..summary_json import SummaryLayout
 from .tables import OVERVIEW, SELECTION_TIME, Estimate, cell, csv_rows, estimates, overview_row, section, table
 
 CRITERION = "C_top(phase 1) + R_top(task of phase 0 at end of phase 1)"
@@ -29,11 +30,11 @@ CRITERION = "C_top(phase 1) + R_top(task of phase 0 at end of phase 1)"
 
 def selection_score(summary: dict[str, Any]) -> float | None:
     """``C_top(phase 1) + R_top(task of phase 0 at the end of phase 1)``; None before phase 1 ended."""
-    current = summary.get("current_top") or []
-    phases = summary.get("phases") or []
+    current = summary.get(SummaryLayout.CURRENT_TOP) or []
+    phases = summary.get(SummaryLayout.PHASES) or []
     if len(current) < 2 or len(phases) < 2:
         return None
-    rows = [r for r in summary.get("forgetting", []) if r["at_end_of"] == 1 and r["task"] == phases[0]]
+    rows = [r for r in summary.get(SummaryLayout.FORGETTING, []) if r["at_end_of"] == 1 and r["task"] == phases[0]]
     if not rows or current[1] is None or rows[0]["R_top"] is None:
         return None
     return float(current[1]) + float(rows[0]["R_top"])
@@ -42,9 +43,10 @@ def selection_score(summary: dict[str, Any]) -> float | None:
 def held_out_selection_score(summary: dict[str, Any]) -> float | None:
     """``selection_score`` on the held-out episodes (the held-out block's top-controller figures);
     None where the run has no such figures."""
-    held = summary.get("held_out") or {}
-    return selection_score({"phases": held.get("phases"), "current_top": held.get("current_top"),
-                            "forgetting": held.get("forgetting", [])})
+    keys = SummaryLayout
+    held = summary.get(keys.HELD_OUT) or {}
+    return selection_score({keys.PHASES: held.get(keys.PHASES), keys.CURRENT_TOP: held.get(keys.CURRENT_TOP),
+                            keys.FORGETTING: held.get(keys.FORGETTING, [])})
 
 
 def optimism_rows(selection: dict[str, Any], summaries: dict[Any, dict[str, Any]]) -> list[list[str]]:

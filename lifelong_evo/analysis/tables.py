@@ -1,6 +1,6 @@
 """The tables of ``compare``: the figures of each run (``run_metrics``: every number of its
 summary.json, each labelled with the episodes it was scored on), their estimates over seeds
-(``Estimate``: mean and 95% t-interval, ``lifelong_evo.commands.statistics``), and the one writer
+(``Estimate``: mean and 95% t-interval, ``analysis.statistics``), and the one writer
 of markdown tables and comparison.csv rows that ``compare`` and the model-specific lambda share.
 
 Episodes. Every figure names the episodes it was scored on: ``held-out`` (summary.json's
@@ -29,6 +29,7 @@ from typing import Any
 
 from ..metrics import HELD_OUT_LEVELS
 from ..runs import Run
+from ..summary_json import SummaryLayout
 from .statistics import seed_order, t_interval
 
 HELD_OUT, SELECTION_TIME, TRAINING = "held-out", "selection-time", "training"
@@ -132,11 +133,11 @@ def run_metrics(summary: dict[str, Any]) -> list[Figure]:
 
     def add(kind: str, part: dict[str, Any], current: dict[str, str], forgetting: dict[str, str],
             transfer: list[str]) -> None:
-        phases = part.get("phases", [])
+        phases = part.get(SummaryLayout.PHASES, [])
         for name, key in current.items():
             for i, (task, value) in enumerate(zip(phases, part.get(key) or [])):
                 out.append(("current", (kind[name], f"{name} phase {i} ({task})"), value))
-        for row in part.get("forgetting", []):
+        for row in part.get(SummaryLayout.FORGETTING, []):
             where = f"{row['task']} at end of phase {row['at_end_of']}"
             for key, kind_of in forgetting.items():
                 if key in row:
@@ -146,26 +147,27 @@ def run_metrics(summary: dict[str, Any]) -> list[Figure]:
                 out.append(("transfer", (kind[name], name), part[name]))
 
     train = {"C": TRAINING, "C_top": SELECTION_TIME, "C_centre": TRAINING,
-             **{f"{m}_{level}": kind for m in ("ACC", "BWT", "FWT") for level, kind in
+             **{SummaryLayout.transfer(m, level): kind for m in SummaryLayout.TRANSFER for level, kind in
                 (("pop", TRAINING), ("top", SELECTION_TIME))}}
-    add(train, summary, {"C": "current", "C_top": "current_top", "C_centre": "centre_current"},
+    add(train, summary, {"C": SummaryLayout.CURRENT, "C_top": SummaryLayout.CURRENT_TOP,
+                         "C_centre": SummaryLayout.CENTRE_CURRENT},
         {"R_pop": TRAINING, "F_pop": TRAINING, "R_top": SELECTION_TIME, "F_top": SELECTION_TIME,
          "R_centre": TRAINING, "F_centre": TRAINING},
-        [f"{m}_{level}" for level in ("pop", "top") for m in ("ACC", "BWT", "FWT")])
-    held = summary.get("held_out")
+        [SummaryLayout.transfer(m, level) for level in ("pop", "top") for m in SummaryLayout.TRANSFER])
+    held = summary.get(SummaryLayout.HELD_OUT)
     if held:
         levels = [level for level in CONTROLLERS if f"current_{level}" in held]
-        transfer = [f"{m}_{level}" for level in levels for m in ("ACC", "BWT", "FWT")]
+        transfer = [SummaryLayout.transfer(m, level) for level in levels for m in SummaryLayout.TRANSFER]
         add({name: HELD_OUT for name in [f"C_{level}" for level in levels] + transfer}, held,
             {f"C_{level}": f"current_{level}" for level in levels},
             {f"{m}_{level}": HELD_OUT for level in levels for m in ("R", "F")}, transfer)
-    for entry in summary.get("stability_gap") or []:
+    for entry in summary.get(SummaryLayout.STABILITY_GAP) or []:
         for level, kind in GAP_KINDS.items():
             if f"gap_{level}" in entry:
                 out.append((STABILITY_GAP, (kind, gap_name(level, entry["task"], entry["after_switch_to"])),
                             entry[f"gap_{level}"]))
-    if summary.get("wall_time_s") is not None:
-        out.append(("cost", ("", "wall time (min)"), summary["wall_time_s"] / 60))
+    if summary.get(SummaryLayout.WALL_TIME) is not None:
+        out.append(("cost", ("", "wall time (min)"), summary[SummaryLayout.WALL_TIME] / 60))
     return out
 
 
