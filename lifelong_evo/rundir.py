@@ -42,7 +42,7 @@ from algorithms import REGISTRY
 
 from . import checkpoint
 from .checkpoint import atomic_write_bytes
-from .config import RunConfig
+from .config import DEFAULT_REGULARISER, RunConfig
 from .errors import RunDirError
 from .metrics import GenerationRecord, retention_column
 from .options import flag
@@ -437,7 +437,8 @@ class RunDir:
         algo = stated.get("algo", stored.algo)
         same_algo = algo == stored.algo
         keep_options = stored.algo_options if same_algo else {}  # another optimiser's options mean nothing
-        given = replace(stored, **{k: v for k, v in stated.items() if k not in ("env", "algo_options")},
+        base = stored if same_algo else replace(stored, regulariser=DEFAULT_REGULARISER)  # nor its regulariser
+        given = replace(base, **{k: v for k, v in stated.items() if k not in ("env", "algo_options")},
                         env={**stored.env, **stated.get("env", {})},
                         algo_options={**keep_options, **stated.get("algo_options", {})}).validate(machine=False)
         differences = []
@@ -832,10 +833,18 @@ def configuration_of(config: dict[str, Any]) -> dict[str, Any]:
     # the training plan follows from the settings beside it, which compare already
     values = {**RunConfig().to_dict(), **RunConfig.WRITTEN_BEFORE,
               **{k: v for k, v in config.items() if k not in ("versions", "training_episodes", "task_definitions")}}
+    values["regulariser"] = RunConfig.regulariser_of(values)
     for given, resolved in RESOLVED:
         if resolved in values:
             values.pop(given, None)
     algo = REGISTRY.get(str(values.get("algo")))
+    if not values.get("reg"):
+        values.pop("regulariser")  # no regulariser: the choice of one is no setting
+    if algo is not None:  # the options that choose a regulariser (importance): the regulariser names them
+        choosing = {key for options in algo.regularisers.values() for key in options}
+        for key in ("algo_options", "algo_options_resolved"):
+            if isinstance(values.get(key), dict):
+                values[key] = {k: v for k, v in values[key].items() if k not in choosing}
     if algo is not None and not values.get("reg"):
         for key in ("algo_options", "algo_options_resolved"):
             if isinstance(values.get(key), dict):
@@ -881,7 +890,7 @@ def config_differences(config: dict[str, Any], others: list[dict[str, Any]]) -> 
                             if any(differs(t.get(key, {}), name, value[name], is_option) for t in compared)]
         elif key in RunConfig.BASELINE_SETTINGS and value == BASELINES_OFF[key]:
             continue
-        elif any(t.get(key) != value for t in compared):
+        elif any(t.get(key) != value for t in compared if key in t or key != "regulariser"):  # runs with one
             differences.append(f"{key}={value}")
     return differences
 

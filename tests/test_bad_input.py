@@ -119,6 +119,11 @@ CUDA = torch.cuda.is_available()
     (["--algo", "openai-es", "--population", "21"], "the population must be even, got 21"),
     (["--population", "abc"], "argument --population: 'abc' is not an integer"),
     (["--option", "references"], "--option 'references' is not KEY=VALUE"),
+    # each family refuses the regularisers it cannot apply, and a synonym that says otherwise
+    (["--algo", "sep-cmaes", "--regulariser", "wp"], "--regulariser wp: sep-cmaes applies l2, ewc, functional"),
+    (["--regulariser", "l2"], "--regulariser l2: neat applies gd, wp, functional"),
+    (["--algo", "snes", "--regulariser", "ewc", "--option", "importance=l2"],
+     "--regulariser ewc and --option importance=l2 choose different regularisers: give one of them"),
     (["--config", "."], "cannot be read"),
     # the overflows: each gave a traceback after config.json and metrics.csv were written
     (["--seed", str(10**23)], "argument --seed: '100000000000000000000000' is not an integer from 0 to 4294967295"),

@@ -324,7 +324,7 @@ def trial_name(values: dict[str, Any], config: RunConfig) -> str:
         return config.default_name()
     parts = []
     for key, value in values.items():
-        if key in ("algo", "schedule", "device"):
+        if key in ("algo", "schedule", "device", "regulariser"):
             parts.append(_slug(value))
         elif key == "record":
             parts.append("rec" if value else "norec")
