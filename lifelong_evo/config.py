@@ -297,11 +297,11 @@ def resolve_regulariser(algo: str, regulariser: str, algo_options: dict[str, Any
         return (chosen[0] if chosen else regulariser), algo_options
     if regulariser not in names:
         applies = f"applies {', '.join(names)}" if names else "names no regulariser: drop --regulariser"
-        raise ConfigError(f"--regulariser {regulariser}: {algo} {applies}")
+        raise ConfigError(f"--regulariser {regulariser!r}: {algo} {applies}")
     clash = [f"--option {k}={algo_options[k]}" for k, v in names[regulariser].items()
              if k in algo_options and algo_options[k] != v]
     if clash:
-        raise ConfigError(f"--regulariser {regulariser} and {' and '.join(clash)} choose different regularisers: "
+        raise ConfigError(f"--regulariser {regulariser!r} and {' and '.join(clash)} choose different regularisers: "
                           "give one of them")
     defaults = asdict(optimizer.Options())
     return regulariser, {**algo_options, **{k: v for k, v in names[regulariser].items() if defaults[k] != v}}
