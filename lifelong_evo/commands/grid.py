@@ -176,7 +176,7 @@ def _file_layer(path: str):
     return axes, fixed, by_algo, values.get("preset"), values.get("name")
 
 
-_FIRST_AXES = ["algo", "schedule", "reg"]  # as in RunConfig.default_name
+_FIRST_AXES = ["algo", "schedule", "regulariser", "reg"]  # as in RunConfig.default_name
 VARIANTS = "variants"
 """The axis of a grid table whose values are sets of values given together (dicts by key)."""
 
