@@ -430,8 +430,8 @@ class RunDir:
         and validated (ConfigError for a bad value); then every setting but the output settings is
         compared, the environment and the optimiser's options resolved as config.json says the run
         resolved them, so a default stated in one and left out in the other is one setting. Where
-        the optimiser differs, its options are not compared: they are another optimiser's, which
-        nobody stated, and ``--algo`` alone is the difference."""
+        the optimiser differs, its options and regulariser are not compared: they are another
+        optimiser's, which nobody stated, and ``--algo`` alone is the difference."""
         stored = self.read_config()
         written = read_json(self.config)
         algo = stated.get("algo", stored.algo)
@@ -443,7 +443,7 @@ class RunDir:
                         algo_options={**keep_options, **stated.get("algo_options", {})}).validate(machine=False)
         differences = []
         for name, value in RunConfig.outcome_settings(given.to_dict()).items():
-            if name == "algo_options" and not same_algo:
+            if name in ("algo_options", "regulariser") and not same_algo:
                 continue
             if name in ("env", "algo_options"):
                 flag, mine = ("--env", given.env_config().to_dict()) if name == "env" else \
