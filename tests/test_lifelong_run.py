@@ -431,7 +431,8 @@ def test_summary_names_the_machine_and_a_resume_elsewhere_adds_one(smoke_runs, t
 def test_runs_played_together_give_the_numbers_they_give_alone(tmp_path):
     """Three runs in step, their evaluations in one batch each generation: other algorithms,
     population sizes and schedule lengths, so that at times one run evaluates green while another
-    evaluates red, or scores earlier tasks while another does not. Each writes the files it
+    evaluates red, or scores earlier tasks while another does not, and one plays the functional
+    regulariser's reference beside its population. Each writes the files it
     writes alone, byte for byte, and a run that fails stops alone."""
     from lifelong_evo.config import resolve
     from lifelong_evo.loop import lifelong, run, run_together
@@ -439,7 +440,7 @@ def test_runs_played_together_give_the_numbers_they_give_alone(tmp_path):
 
     settings = [{"algo": "neat", "reg": 2.0, "seed": 1, "generations": 3},
                 {"algo": "openai-es", "seed": 2, "generations": 4, "population": 12},
-                {"algo": "sep-cmaes", "reg": 5.0, "seed": 3, "generations": 2}]
+                {"algo": "sep-cmaes", "reg": 5.0, "regulariser": "functional", "seed": 3, "generations": 2}]
     configs = [resolve("smoke", {**values, "record": False, "env": {"duration": 60}}) for values in settings]
     for index, config in enumerate(configs):
         run(config, RunDir(tmp_path / "alone" / str(index)), progress="off")
