@@ -94,6 +94,12 @@ class OptimizerOptions:
                                  f"got {getattr(self, f.name)!r}")
 
 
+FUNCTIONAL = "functional"
+"""The regulariser every optimiser with a ``reference_export`` can have: lambda times the mean
+summed absolute difference between a controller's outputs and the reference's on the
+observations the controller saw (``lifelong_evo.evaluate.BesideReference``)."""
+
+
 class Optimizer(ABC):
     """A population-based optimiser behind the ask/tell interface."""
 
@@ -107,6 +113,11 @@ class Optimizer(ABC):
     configuration."""
     Options: ClassVar[type[OptimizerOptions]] = OptimizerOptions
     """The options the constructor takes as keyword arguments (none by default)."""
+    regularisers: ClassVar[dict[str, dict[str, Any]]] = {}
+    """The regularisers ``--regulariser`` may choose for this optimiser, its default first, each with
+    the options that make the optimiser apply it. ``functional`` (``FUNCTIONAL``) names none: the
+    lifelong loop applies it, to the controllers' outputs beside ``reference_export``'s, with the
+    optimiser built at lambda 0. Empty: the optimiser's own regulariser, unnamed."""
 
     @classmethod
     def check_population(cls, population_size: int, options: OptimizerOptions) -> None:
@@ -158,6 +169,12 @@ class Optimizer(ABC):
     @abstractmethod
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore what ``state_dict`` returned."""
+
+    def reference_export(self) -> dict[str, Any] | None:
+        """The regulariser's latest reference (taken at ``end_task``) as ``export`` writes a
+        controller, or ``None`` before the first: the functional regulariser's reference. An
+        optimiser that lists ``functional`` in ``regularisers`` implements it."""
+        return None
 
     @abstractmethod
     def export(self, index: int) -> dict[str, Any]:

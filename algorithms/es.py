@@ -29,7 +29,7 @@ import torch
 from evotorch import Problem
 from evotorch.optimizers import ClipUp, TorchOptimizer
 
-from .base import GenerationReport, Optimizer, OptimizerOptions
+from .base import FUNCTIONAL, GenerationReport, Optimizer, OptimizerOptions
 from .mlp import MLPPolicy, check_export, layer_sizes_for, n_parameters
 from .regularizers import Importance, Reference, Regularizer
 
@@ -82,7 +82,8 @@ class ESOptions(OptimizerOptions):
     reference: Reference = "centre"
     """The regulariser's reference, taken at each task end: the centre, or the task's best controller."""
     importance: Importance = "l2"
-    """The regulariser's weight per parameter: all 1 (l2), or estimated from the search (ewc)."""
+    """The regulariser's weight per parameter: all 1 (l2), or estimated from the search (ewc); a synonym
+    of --regulariser l2 or ewc."""
 
     def __post_init__(self):
         object.__setattr__(self, "hidden", tuple(self.hidden))
@@ -113,6 +114,8 @@ class ESOptimizer(Optimizer):
     Options: ClassVar[type[ESOptions]] = ESOptions
     diagnostics: ClassVar[tuple[str, ...]] = ("distance_mean", "distance_std")
     regularizer_options: ClassVar[tuple[str, ...]] = ("reference", "importance")
+    regularisers: ClassVar[dict[str, dict[str, Any]]] = {"l2": {"importance": "l2"}, "ewc": {"importance": "ewc"},
+                                                         FUNCTIONAL: {}}
     even_population: ClassVar[bool] = False
     """Mirrored sampling needs an even number of samples."""
 
@@ -241,6 +244,13 @@ class ESOptimizer(Optimizer):
             raise ValueError(f"the controller has layer sizes {exported['layer_sizes']}, this optimiser "
                              f"{list(self.layer_sizes)}")
         self._move_centre(torch.tensor(exported["parameters"], dtype=torch.float32, device=self.device))
+
+    def reference_export(self) -> dict[str, Any] | None:
+        """The regulariser's reference (the centre, or the task's best: ``reference``), as ``export``
+        writes a controller."""
+        reference = self.regularizer.reference
+        return None if reference is None else {"layer_sizes": list(self.layer_sizes),
+                                               "parameters": reference.detach().cpu().tolist()}
 
     def export(self, index: int) -> dict[str, Any]:
         if self._population is None:

@@ -6,7 +6,9 @@ A (1, lambda) hill climber on the project's MLP controller: each generation samp
 ``population_size`` perturbations of the incumbent (the incumbent itself is controller 0) and
 keeps the best. Registering it makes every verb (run, sweep, compare) accept ``--algo hill-climber``;
 its ``Options`` declare ``--option sigma=0.05`` and ``--option hidden=[32,16]``: parsed, checked, and
-listed by ``python examples/custom_optimizer.py --help``.
+listed by ``python examples/custom_optimizer.py --help``. Its one regulariser is the functional one,
+which needs only its reference, the incumbent at each task end (``reference_export``):
+``python examples/custom_optimizer.py --preset smoke --reg 1``.
 """
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ from typing import Any
 import torch
 
 from algorithms import REGISTRY, GenerationReport, Optimizer, OptimizerOptions
+from algorithms.base import FUNCTIONAL
 from algorithms.mlp import MLPPolicy, layer_sizes_for, n_parameters
 from lifelong_evo.commands.cli import main
 
@@ -36,8 +39,8 @@ class HillClimberOptions(OptimizerOptions):
 
 class HillClimber(Optimizer):
     name = "hill-climber"
-    has_regularizer = False
     Options = HillClimberOptions
+    regularisers = {FUNCTIONAL: {}}
 
     def __init__(self, *, obs_dim: int, population_size: int, seed: int, reg: float = 0.0,
                  device: str = "cpu", **options):
@@ -49,6 +52,7 @@ class HillClimber(Optimizer):
         self.incumbent = torch.zeros(n_parameters(self.layer_sizes))
         self.size = population_size
         self.samples: torch.Tensor | None = None
+        self.reference: torch.Tensor | None = None
 
     @property
     def population_size(self) -> int:
@@ -70,15 +74,21 @@ class HillClimber(Optimizer):
         return GenerationReport(extra={"sigma": self.sigma})
 
     def end_task(self) -> None:
-        pass
+        self.reference = self.incumbent.clone()
+
+    def reference_export(self) -> dict[str, Any] | None:
+        return None if self.reference is None else {"layer_sizes": list(self.layer_sizes),
+                                                    "parameters": self.reference.tolist()}
 
     def state_dict(self) -> dict[str, Any]:
-        return {"incumbent": self.incumbent, "generator": self.generator.get_state(), "samples": self.samples}
+        return {"incumbent": self.incumbent, "generator": self.generator.get_state(), "samples": self.samples,
+                "reference": self.reference}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.incumbent = state["incumbent"]
         self.generator.set_state(state["generator"])
         self.samples = state["samples"]
+        self.reference = state["reference"]
 
     def export(self, index: int) -> dict[str, Any]:
         return {"layer_sizes": list(self.layer_sizes), "parameters": self.samples[index].tolist()}

@@ -16,6 +16,9 @@ from .schedule import (MAX_GENERATIONS, ScheduleError, arena_colors, distinct_ta
                        rehearsal_episodes, training_episodes)
 from .tasks import task_catalogue
 
+DEFAULT_REGULARISER = "default"
+"""``RunConfig.regulariser`` before it is resolved: the optimiser's own (``resolve_regulariser``)."""
+
 
 @dataclass(frozen=True)
 class RunConfig:
@@ -25,7 +28,11 @@ class RunConfig:
     algo: str = "neat"
     """Optimiser: a name in algorithms.REGISTRY, yours included (python -m lifelong_evo options lists them)."""
     reg: float = field(default=0.0, metadata={"min": 0, "max": 1e9})
-    """Regularisation strength lambda (0 = off): genetic distance for NEAT, L2/EWC for the ES."""
+    """Regularisation strength lambda (0 = off) of --regulariser."""
+    regulariser: str = DEFAULT_REGULARISER
+    """The regulariser: gd or wp (NEAT), l2 or ewc (the ES; --option importance is a synonym), functional
+    (NEAT, the ES, an optimiser with a reference); default: the optimiser's own (NEAT gd, the ES l2)
+    (docs/algorithms.md)."""
     schedule: str = "red-green-red"
     """red-green-red, four-tasks, nest-relocation, robot-failure, or a list like red:200,green:100,red:50
     of built-in tasks and those --tasks defines; a>b:N blends task a into task b over N generations
@@ -127,7 +134,23 @@ class RunConfig:
         field that ``values`` lacks (a config.json written before the field existed) counts at
         its default, which is how such a run ran."""
         filled = {**asdict(cls()), **values} if values else {}
+        if filled:
+            filled["regulariser"] = cls.regulariser_of(filled)
         return {k: v for k, v in json.loads(json.dumps(filled)).items() if k not in cls.OUTPUT_SETTINGS}
+
+    @staticmethod
+    def regulariser_of(values: dict[str, Any]) -> str:
+        """The regulariser a run of ``values`` (RunConfig's fields, as config.json holds them)
+        applies: its ``regulariser``, or where that is the default (a config.json written before
+        the setting existed) the optimiser's own that its options choose (``resolve_regulariser``);
+        ``default`` where the optimiser or its options are not known here."""
+        regulariser = values.get("regulariser", DEFAULT_REGULARISER)
+        if regulariser != DEFAULT_REGULARISER:
+            return regulariser
+        try:
+            return resolve_regulariser(values.get("algo"), regulariser, values.get("algo_options") or {})[0]
+        except (ConfigError, KeyError, TypeError, ValueError):
+            return regulariser
 
     @classmethod
     def first_task_settings(cls, values: dict[str, Any]) -> dict[str, Any]:
@@ -144,9 +167,14 @@ class RunConfig:
         return {k: v for k, v in values.items() if k not in ignored}
 
     def default_name(self) -> str:
-        """The run directory's name when none is given: ``neat-red-green-red-reg11-seed42``."""
+        """The run directory's name when none is given: ``neat-red-green-red-reg11-seed42``, with a
+        regulariser other than the optimiser's default before lambda (``neat-red-green-red-wp-reg0.4-seed42``)."""
+        from algorithms import REGISTRY
+
         schedule = re.sub(r"[^A-Za-z0-9]+", "-", self.schedule).strip("-")
-        return f"{self.algo}-{schedule}-reg{self.reg:g}-seed{self.seed}"
+        own = next(iter(getattr(REGISTRY.get(self.algo), "regularisers", None) or [DEFAULT_REGULARISER]))
+        regulariser = "" if self.regulariser in (own, DEFAULT_REGULARISER) else f"-{self.regulariser}"
+        return f"{self.algo}-{schedule}{regulariser}-reg{self.reg:g}-seed{self.seed}"
 
     def phases(self):
         return parse_schedule(self.schedule, self.generations, task_catalogue(self.tasks))
@@ -197,6 +225,8 @@ class RunConfig:
             options = optimizer.Options(**config.algo_options)
         except ValueError as error:
             raise ConfigError(f"--option {error}") from None
+        regulariser, algo_options = resolve_regulariser(algo, config.regulariser, config.algo_options)
+        config = replace(config, regulariser=regulariser, algo_options=algo_options)
         try:
             optimizer.check_population(config.population, options)
         except ValueError as error:
@@ -256,6 +286,33 @@ class RunConfig:
         if unknown:
             raise ConfigError(f"unknown option(s) {unknown} in {source}: valid ones are {sorted(known)}")
         return cls(**values)
+
+
+def resolve_regulariser(algo: str, regulariser: str, algo_options: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+    """The regulariser a run of ``algo`` applies, and its options with those that choose it
+    (``Optimizer.regularisers``): ``default`` is the first of the optimiser's regularisers that its
+    options choose (``--option importance=ewc``: ``ewc``), or stays ``default`` for an optimiser
+    that names none; a named one adds the options that choose it where they are not their
+    defaults, so that ``--regulariser ewc`` and ``--option importance=ewc`` are one configuration.
+    ConfigError where the optimiser cannot apply it, or an option given says otherwise."""
+    from algorithms import REGISTRY
+
+    optimizer = REGISTRY[algo]
+    names = optimizer.regularisers
+    if regulariser == DEFAULT_REGULARISER:
+        resolved = asdict(optimizer.Options(**algo_options))
+        chosen = [name for name, options in names.items() if all(resolved[k] == v for k, v in options.items())]
+        return (chosen[0] if chosen else regulariser), algo_options
+    if regulariser not in names:
+        applies = f"applies {', '.join(names)}" if names else "names no regulariser: drop --regulariser"
+        raise ConfigError(f"--regulariser {regulariser!r}: {algo} {applies}")
+    clash = [f"--option {k}={algo_options[k]}" for k, v in names[regulariser].items()
+             if k in algo_options and algo_options[k] != v]
+    if clash:
+        raise ConfigError(f"--regulariser {regulariser!r} and {' and '.join(clash)} choose different regularisers: "
+                          "give one of them")
+    defaults = asdict(optimizer.Options())
+    return regulariser, {**algo_options, **{k: v for k, v in names[regulariser].items() if defaults[k] != v}}
 
 
 PRESETS: dict[str, dict[str, Any]] = {

@@ -2,7 +2,9 @@
 fitness, for the recording's and replay's episodes, for the benchmark), ``evaluate``, which
 scores a whole population on several tasks in one batched environment call (or one per
 evaluation thread, each over a slice of the population), and ``evaluate_together``, which plays
-several runs' evaluations in one batch, each giving the fitness ``evaluate`` gives it alone."""
+several runs' evaluations in one batch, each giving the fitness ``evaluate`` gives it alone.
+``BesideReference`` plays a population with a reference controller beside it, for the functional
+regulariser."""
 from __future__ import annotations
 
 import functools
@@ -220,6 +222,56 @@ def _play_together(evaluations: Sequence[Evaluation]) -> list[torch.Tensor]:
         fitness.append(task_means(per_controller, episode_counts(evaluation.tasks, evaluation.n_envs)))
         start += size
     return fitness
+
+
+class BesideReference:
+    """``policy``, played as it is, with ``reference`` (a one-controller policy) run beside it on
+    the very observations each controller sees, step by step in the same rollout: ``penalty`` is
+    then, per controller, the mean over its episodes, steps and agents of the summed absolute
+    difference between its 3 outputs and the reference's (the functional regulariser's penalty).
+
+    The differences are computed in the policies' own arithmetic, rounded to multiples of
+    ``GRID`` and summed as integers, so the penalty is the same bits in any shard of the
+    population (evaluation threads), alone or played with other runs. ``shard`` exists where
+    ``policy`` has one; each shard keeps its own sums, which ``penalty`` joins in order."""
+
+    GRID = 2.0 ** -24
+
+    def __init__(self, policy: BatchedPolicy, reference: BatchedPolicy):
+        self.policy, self.reference = policy, reference
+        self.population_size = policy.population_size
+        self.steps = 0
+        self._sums: torch.Tensor | None = None  # (population, episodes) int64, in GRID units
+        self._agents = 0
+        self._shards: list[BesideReference] = []
+        if callable(getattr(policy, "shard", None)):
+            self.shard = self._shard
+
+    def _shard(self, start: int, stop: int) -> "BesideReference":
+        part = BesideReference(self.policy.shard(start, stop), self.reference)
+        self._shards.append(part)
+        return part
+
+    def __call__(self, observations: torch.Tensor) -> torch.Tensor:
+        outputs = self.policy(observations)
+        population, episodes, agents, width = observations.shape
+        theirs = self.reference(observations.reshape(1, population * episodes, agents, width))
+        difference = (outputs - theirs.view(outputs.shape)).abs()
+        counts = torch.round(difference.double() / self.GRID).long().sum(dim=(2, 3))
+        self._sums = counts if self._sums is None else self._sums + counts
+        self.steps += 1
+        self._agents = agents
+        return outputs
+
+    def penalty(self, episodes: int) -> torch.Tensor:
+        """``(population,)`` float64: each controller's mean, over its first ``episodes`` episodes
+        (a generation's training episodes come first), every step and every agent, of
+        ``sum_k |output_k - reference output_k|``."""
+        parts = self._shards or [self]
+        if any(part._sums is None for part in parts):
+            raise RuntimeError("penalty() before the population was played")
+        sums = torch.cat([part._sums[:, :episodes] for part in parts]).sum(dim=1)
+        return sums.double() * self.GRID / (episodes * parts[0].steps * parts[0]._agents)
 
 
 class _Together:

@@ -2,6 +2,11 @@
 current task (and on earlier tasks every few generations, in the same batched call), regularise,
 tell, record; a checkpoint at intervals and at every task end.
 
+The functional regulariser (``--regulariser functional``) is the loop's, not the optimiser's: the
+optimiser is built at lambda 0, its latest reference (``Optimizer.reference_export``) plays beside
+the population in the same evaluation (``evaluate.BesideReference``), and the selection fitness is
+the fitness less lambda times that penalty.
+
 The baselines of docs/metrics.md change only what a generation trains on
 (``schedule.training_episodes``: rehearsal, joint, blends), when the regulariser takes its
 reference (``reference_every``) and whether the optimiser starts afresh at a task end
@@ -34,13 +39,14 @@ from typing import Any, Callable, Generator, Iterator, Sequence
 import torch
 
 from algorithms import make_optimizer, policy_from_export
+from algorithms.base import FUNCTIONAL
 from envs import numerics
 
 from . import checkpoint
 from .config import RunConfig, check_device
 from .episodes import play_episodes
 from .errors import RunDirError
-from .evaluate import Evaluation, evaluate, evaluate_together, update_threads
+from .evaluate import BesideReference, Evaluation, evaluate, evaluate_together, update_threads
 from .held_out import score_controllers
 from .metrics import (INITIAL, FitnessStats, GenerationRecord, Retention, controller_key, retention, stability_gap,
                       summarise)
@@ -182,6 +188,7 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
     recorder = recorder or Recorder()
     display = Progress(sum(p.generations for p in phases), state.generation, mode=progress)
     started = time.monotonic() - state.wall_time_s
+    functional = _FunctionalReference(config)
 
     def summary_now() -> dict[str, Any]:
         gap = stability_gap(read_metrics(run_dir.metrics), phase_names, config.gap_window) if config.gap_window else None
@@ -213,13 +220,16 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
                 optimizer.adopt(state.archive[phase.name])
             with update_threads(config.threads, config.eval_threads):
                 policy = optimizer.ask()
-            fitness = yield Evaluation(policy, env_config, [task for task, _ in training] + others,
+            played = functional.beside(policy, optimizer)
+            fitness = yield Evaluation(played, env_config, [task for task, _ in training] + others,
                                        [n for _, n in training] + [config.evals] * len(others), generator,
                                        config.device, compiled=config.compile, eval_threads=config.eval_threads,
                                        cuda_graphs=config.cuda_graphs, numerics=config.numerics)
             numerics.use(config.numerics)  # runs played in step (run_together) may compute otherwise
             raw = _mean_over_episodes(fitness[:len(training)], [n for _, n in training])
-            regularised = optimizer.regularise(raw)
+            penalty = played.penalty(sum(n for _, n in training)) if played is not policy else None
+            regularised = optimizer.regularise(raw) if penalty is None else \
+                (raw.double() - config.reg * penalty).to(raw.dtype)
             # the top individual is the one selection favours, as in the paper's code: with a
             # regulariser on, the best by regularised fitness, which is what one would deploy
             scores = {task.name: retention(fitness[len(training) + i], regularised, centre)
@@ -244,6 +254,10 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
             exported = exports.get("top")
             with update_threads(config.threads, config.eval_threads):
                 report = optimizer.tell(raw, regularised)
+            if penalty is not None:  # the distance diagnostics are the penalty the selection used
+                report.extra.update({name: value for name, value in (
+                    ("distance_mean", penalty.mean().item()), ("distance_std", penalty.std(unbiased=False).item()))
+                    if name in optimizer.diagnostics})
 
             record = GenerationRecord(
                 task=phase.name, task_index=phase_index, generation=generation, generation_in_task=in_task,
@@ -302,8 +316,30 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
 
 
 def _make_optimizer(config: RunConfig, env_config, seed: int):
+    """The run's optimiser; at lambda 0 under the functional regulariser, which the loop applies."""
+    reg = 0.0 if config.regulariser == FUNCTIONAL else config.reg
     return make_optimizer(config.algo, obs_dim=env_config.obs_dim, population_size=config.population, seed=seed,
-                          reg=config.reg, device=config.device, **config.algo_options)
+                          reg=reg, device=config.device, **config.algo_options)
+
+
+class _FunctionalReference:
+    """The functional regulariser's reference as a policy, rebuilt only when the optimiser's
+    reference (``Optimizer.reference_export``) changes."""
+
+    def __init__(self, config: RunConfig):
+        self.on, self.device = config.regulariser == FUNCTIONAL, config.device
+        self.exported: dict[str, Any] | None = None
+        self.policy = None
+
+    def beside(self, policy, optimizer):
+        """``policy`` with the reference beside it (``evaluate.BesideReference``), or ``policy``
+        itself where the regulariser is another or there is no reference yet."""
+        exported = optimizer.reference_export() if self.on else None
+        if exported is None:
+            return policy
+        if exported != self.exported:
+            self.exported, self.policy = exported, policy_from_export(exported, self.device)
+        return BesideReference(policy, self.policy)
 
 
 def _seed_from(*parts: object, bits: int) -> int:

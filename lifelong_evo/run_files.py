@@ -25,6 +25,7 @@ here: reading a run needs only its files.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -89,6 +90,7 @@ def check_config(values: Any, path: Path, written_beside: Iterable[str] = ()) ->
         except ConfigError as error:
             raise RunDirError(f"{path}, key {name!r}: {error}: {FIX}") from None
     config = RunConfig(**typed)
+    config = replace(config, regulariser=RunConfig.regulariser_of(config.to_dict()))  # an older config.json's
     try:
         config.phases()
     except ScheduleError as error:

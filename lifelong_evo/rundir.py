@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from . import checkpoint
-from .config import RunConfig
+from .config import DEFAULT_REGULARISER, RunConfig
 from .errors import RunDirError
 from .json_files import read_json, write_json
 from .metrics_csv import METRICS_FILE, SPECIES_FILE
@@ -225,19 +225,20 @@ class RunDir:
         and validated (ConfigError for a bad value); then every setting but the output settings is
         compared, the environment and the optimiser's options resolved as config.json says the run
         resolved them, so a default stated in one and left out in the other is one setting. Where
-        the optimiser differs, its options are not compared: they are another optimiser's, which
-        nobody stated, and ``--algo`` alone is the difference."""
+        the optimiser differs, its options and regulariser are not compared: they are another
+        optimiser's, which nobody stated, and ``--algo`` alone is the difference."""
         stored = self.read_config()
         written = read_json(self.config)
         algo = stated.get("algo", stored.algo)
         same_algo = algo == stored.algo
         keep_options = stored.algo_options if same_algo else {}  # another optimiser's options mean nothing
-        given = replace(stored, **{k: v for k, v in stated.items() if k not in ("env", "algo_options")},
+        base = stored if same_algo else replace(stored, regulariser=DEFAULT_REGULARISER)  # nor its regulariser
+        given = replace(base, **{k: v for k, v in stated.items() if k not in ("env", "algo_options")},
                         env={**stored.env, **stated.get("env", {})},
                         algo_options={**keep_options, **stated.get("algo_options", {})}).validate(machine=False)
         differences = []
         for name, value in RunConfig.outcome_settings(given.to_dict()).items():
-            if name == "algo_options" and not same_algo:
+            if name in ("algo_options", "regulariser") and not same_algo:
                 continue
             if name in ("env", "algo_options"):
                 flag, mine = ("--env", given.env_config().to_dict()) if name == "env" else \

@@ -103,10 +103,13 @@ def configuration_of(config: dict[str, Any]) -> dict[str, Any]:
     # the training plan follows from the settings beside it, which compare already
     values = {**RunConfig().to_dict(), **RunConfig.WRITTEN_BEFORE,
               **{k: v for k, v in config.items() if k not in ("versions", "training_episodes", "task_definitions")}}
+    values["regulariser"] = RunConfig.regulariser_of(values)
     for given, resolved in RESOLVED:
         if resolved in values:
             values.pop(given, None)
     algo = REGISTRY.get(str(values.get("algo")))
+    if not values.get("reg"):
+        values.pop("regulariser")  # no regulariser: the choice of one is no setting
     if algo is not None and not values.get("reg"):
         for key in ("algo_options", "algo_options_resolved"):
             if isinstance(values.get(key), dict):
@@ -127,7 +130,9 @@ def config_differences(config: dict[str, Any], others: list[dict[str, Any]]) -> 
     """What sets ``config`` apart from ``others`` beyond algorithm, lambda and schedule, as
     ``KEY=VALUE`` items: an algorithm option only among runs of the same algorithm, each option
     and environment setting by itself (``genetics=2.0``, ``env.see_other_agents=True``). A
-    regulariser's option only against runs that have one (not those at ``reg == 0``), a baseline
+    regulariser's option only against runs that have one (not those at ``reg == 0``), the
+    regulariser itself (``regulariser=wp``) likewise and among runs of the same algorithm, in place
+    of the options that choose it (``importance``), a baseline
     setting (``RunConfig.BASELINE_SETTINGS``) only where it is on: fine-tuning is the plain label,
     a baseline ``rehearsal=0.3`` or ``joint=True``."""
     mine = configuration_of(config)
@@ -135,6 +140,8 @@ def config_differences(config: dict[str, Any], others: list[dict[str, Any]]) -> 
     same_algo = [t for t, o in zip(theirs, others) if o.get("algo") == config.get("algo")]
     algo = REGISTRY.get(str(config.get("algo")))
     regularizer_only = set(algo.regularizer_options) if algo is not None else set()
+    # the options that choose a regulariser (an ES's importance): its label is regulariser=NAME
+    choosing = {key for options in getattr(algo, "regularisers", {}).values() for key in options}
 
     def differs(settings: dict[str, Any], name: str, value: Any, is_option: bool) -> bool:
         if is_option and name in regularizer_only and name not in settings:
@@ -145,14 +152,15 @@ def config_differences(config: dict[str, Any], others: list[dict[str, Any]]) -> 
     for key in sorted(k for k in mine if k not in ("algo", "reg", "schedule")):
         value = mine[key]
         is_option = key in ("algo_options", "algo_options_resolved")
-        compared = same_algo if is_option else theirs
+        compared = same_algo if is_option or key == "regulariser" else theirs  # as an option: one algorithm's
         if isinstance(value, dict):
             prefix = "env." if key in ("env", "env_resolved") else ""
             differences += [f"{prefix}{name}={value[name]}" for name in sorted(value)
-                            if any(differs(t.get(key, {}), name, value[name], is_option) for t in compared)]
+                            if not (is_option and name in choosing)
+                            and any(differs(t.get(key, {}), name, value[name], is_option) for t in compared)]
         elif key in RunConfig.BASELINE_SETTINGS and value == BASELINES_OFF[key]:
             continue
-        elif any(t.get(key) != value for t in compared):
+        elif any(t.get(key) != value for t in compared if key in t or key != "regulariser"):  # runs with one
             differences.append(f"{key}={value}")
     return differences
 

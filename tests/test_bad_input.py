@@ -119,6 +119,11 @@ CUDA = torch.cuda.is_available()
     (["--algo", "openai-es", "--population", "21"], "the population must be even, got 21"),
     (["--population", "abc"], "argument --population: 'abc' is not an integer"),
     (["--option", "references"], "--option 'references' is not KEY=VALUE"),
+    # each family refuses the regularisers it cannot apply, and a synonym that says otherwise
+    (["--algo", "sep-cmaes", "--regulariser", "wp"], "--regulariser 'wp': sep-cmaes applies l2, ewc, functional"),
+    (["--regulariser", "l2"], "--regulariser 'l2': neat applies gd, wp, functional"),
+    (["--algo", "snes", "--regulariser", "ewc", "--option", "importance=l2"],
+     "--regulariser 'ewc' and --option importance=l2 choose different regularisers: give one of them"),
     (["--config", "."], "cannot be read"),
     # the issue's overflows: each gave a traceback after config.json and metrics.csv were written
     (["--seed", str(10**23)], "argument --seed: '100000000000000000000000' is not an integer from 0 to 4294967295"),
@@ -374,6 +379,7 @@ SEMANTIC = {
 TEXT = {
     "algo": st.text().filter(lambda t: t.strip() not in REGISTRY),
     "schedule": st.text(alphabet="xyz:,-0123456789", min_size=1).filter(lambda t: re.search("[xyz]", t)),
+    "regulariser": st.text().filter(lambda t: t.strip() not in ("default", *REGISTRY["neat"].regularisers)),
     "device": st.sampled_from(["nonsense", "gpu", "cuda:99", "cpu:x", "", " "] + ([] if CUDA else ["cuda", "cuda:0"])),
 }
 """Bad values of the run options that are text."""

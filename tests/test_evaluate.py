@@ -4,7 +4,7 @@ import torch
 
 from algorithms.mlp import MLPPolicy, layer_sizes_for, n_parameters
 from envs import TASKS, ForagingConfig
-from lifelong_evo.evaluate import evaluate, shard_bounds
+from lifelong_evo.evaluate import BesideReference, evaluate, shard_bounds
 
 DENSE = ForagingConfig(duration=120, max_wheel_velocity=20.0, n_boxes=12, size=14.0)
 """A small crowded arena with fast robots: random controllers pick, drop and score within 120 steps."""
@@ -70,3 +70,60 @@ def test_a_reset_from_a_state_leaves_that_state_as_given():
     assert int(env.state.steps.min()) > 0, "the episodes must have run for the test to bite"
     for name, value in given.items():
         assert torch.equal(getattr(state, name), value), name
+
+
+class _Seen:
+    """A policy that keeps the observations it is given, step by step."""
+
+    def __init__(self, policy):
+        self.policy, self.population_size, self.seen = policy, policy.population_size, []
+
+    def __call__(self, observations):
+        self.seen.append(observations.clone())
+        return self.policy(observations)
+
+
+def _mean_difference(policy, reference, seen, episodes):
+    """Per controller of ``policy``: the mean over the steps ``seen``, the first ``episodes`` episodes
+    and the agents of sum_k |output_k - reference output_k|, the reference run on the same rows."""
+    per_step = []
+    for observations in seen:
+        population, n_episodes, agents, width = observations.shape
+        mine = policy(observations)
+        theirs = reference(observations.reshape(1, population * n_episodes, agents, width)).view(mine.shape)
+        per_step.append((mine - theirs).abs().sum(dim=-1)[:, :episodes].double())
+    return torch.stack(per_step).mean(dim=(0, 2, 3))
+
+
+def test_functional_penalty_is_on_the_observations_each_controller_saw():
+    """BesideReference plays the population unchanged and, per controller, averages over its own
+    training episodes (the first ones), steps and agents the summed absolute output difference to
+    the reference on the observations that controller saw, not on the reference's own episodes;
+    the same bits in any evaluation thread."""
+    sizes = layer_sizes_for(DENSE.obs_dim)
+    generator = torch.Generator().manual_seed(7)
+    population = MLPPolicy(torch.randn(5, n_parameters(sizes), generator=generator) * 3, sizes)
+    reference = MLPPolicy(torch.randn(1, n_parameters(sizes), generator=generator) * 3, sizes)
+    tasks, training = [TASKS["red"], TASKS["green"]], 3  # 3 training episodes (red), then 3 scored on green
+
+    def play(policy, threads=1):
+        return evaluate(policy, DENSE, tasks, training, torch.Generator().manual_seed(5), eval_threads=threads)
+
+    beside = BesideReference(population, reference)
+    seen = _Seen(population)
+    plain = play(seen)
+    assert torch.equal(play(beside), plain), "the reference beside changes nothing the population does"
+    got = beside.penalty(training)
+    expected = _mean_difference(population, reference, seen.seen, training)
+    assert torch.allclose(got, expected, atol=1e-6, rtol=0)
+    assert len(set(got.tolist())) == 5
+    # what the test tells apart: the reference's own episodes, and every episode played
+    alone = _Seen(reference)
+    evaluate(alone, DENSE, tasks, training, torch.Generator().manual_seed(5))
+    on_its_own = _mean_difference(population, reference, [o.expand(5, *o.shape[1:]) for o in alone.seen], training)
+    assert not torch.allclose(got, on_its_own, atol=1e-3, rtol=0)
+    assert not torch.allclose(got, _mean_difference(population, reference, seen.seen, 2 * training), atol=1e-3)
+    for threads in (2, 3):
+        sharded = BesideReference(population, reference)
+        assert torch.equal(play(sharded, threads), plain)
+        assert torch.equal(sharded.penalty(training), got), threads

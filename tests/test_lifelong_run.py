@@ -433,7 +433,8 @@ def test_summary_names_the_machine_and_a_resume_elsewhere_adds_one(smoke_runs, t
 def test_runs_played_together_give_the_numbers_they_give_alone(tmp_path):
     """Three runs in step, their evaluations in one batch each generation: other algorithms,
     population sizes and schedule lengths, so that at times one run evaluates green while another
-    evaluates red, or scores earlier tasks while another does not. Each writes the files it
+    evaluates red, or scores earlier tasks while another does not, and one plays the functional
+    regulariser's reference beside its population. Each writes the files it
     writes alone, byte for byte, and a run that fails stops alone."""
     from lifelong_evo.config import resolve
     from lifelong_evo.loop import lifelong, run, run_together
@@ -441,7 +442,7 @@ def test_runs_played_together_give_the_numbers_they_give_alone(tmp_path):
 
     settings = [{"algo": "neat", "reg": 2.0, "seed": 1, "generations": 3},
                 {"algo": "openai-es", "seed": 2, "generations": 4, "population": 12},
-                {"algo": "sep-cmaes", "reg": 5.0, "seed": 3, "generations": 2}]
+                {"algo": "sep-cmaes", "reg": 5.0, "regulariser": "functional", "seed": 3, "generations": 2}]
     configs = [resolve("smoke", {**values, "record": False, "env": {"duration": 60}}) for values in settings]
     for index, config in enumerate(configs):
         run(config, RunDir(tmp_path / "alone" / str(index)), progress="off")
@@ -533,8 +534,9 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "lifelong_evo", *args]
 
 
-@pytest.mark.parametrize("algo", [["neat"], ["neat", "--option", "genetics=2.0"], ["openai-es"]],
-                         ids=["neat", "neat-genetics-2.0", "openai-es"])
+@pytest.mark.parametrize("algo", [["neat"], ["neat", "--option", "genetics=2.0"], ["openai-es"],
+                                  ["sep-cmaes", "--regulariser", "functional"]],
+                         ids=["neat", "neat-genetics-2.0", "openai-es", "sep-cmaes-functional"])
 def test_resume_after_sigkill_gives_identical_metrics(tmp_path, algo):
     """Kill a run with SIGKILL at a random moment, resume it, compare with an uninterrupted run."""
     common = ["--algo", *algo, "--reg", "1", "--preset", "smoke", "--generations", "8", "--env", "duration=60",
@@ -593,6 +595,24 @@ def test_without_a_regulariser_its_options_change_no_controller(tmp_path, algo):
         [{k: v for k, v in row.items() if k not in distances} for row in changed_rows]
     # the options did reach the regulariser: its distances after the drift differ
     assert [row["distance_mean"] for row in default][2:] != [row["distance_mean"] for row in changed_rows][2:]
+
+
+@pytest.mark.parametrize("algo", ["neat", "sep-cmaes"])
+def test_the_functional_regulariser_selects_on_its_penalty(tmp_path, algo):
+    """``--regulariser functional``: from the first drift the selection fitness is the fitness less
+    lambda times the penalty, which metrics.csv's distance columns give (NaN before the drift);
+    the number of evaluation threads changes no byte."""
+    for threads in (1, 2):
+        assert main(["--algo", algo, "--regulariser", "functional", "--reg", "3", "--preset", "smoke",
+                     "--schedule", "red:2,green:3", "--env", "duration=60", "--eval-threads", str(threads),
+                     "--out", str(tmp_path), "--name", f"threads{threads}", "--no-record", "--quiet"]) == 0
+    rows = _rows(tmp_path / "threads1/metrics.csv")
+    assert (tmp_path / "threads1/metrics.csv").read_bytes() == (tmp_path / "threads2/metrics.csv").read_bytes()
+    assert all(row["distance_mean"] == "" for row in rows[:2])
+    for row in rows[2:]:
+        penalty = float(row["distance_mean"])
+        assert 0 < penalty <= 3
+        assert float(row["mean"]) - float(row["reg_mean"]) == pytest.approx(3 * penalty, rel=1e-5)
 
 
 def test_reg_for_an_algorithm_without_regulariser(monkeypatch, tmp_path, capsys):

@@ -13,6 +13,7 @@ import torch
 
 from algorithms.base import GenerationReport
 from algorithms.neat import NeatOptimizer
+from algorithms.neat.optimizer import weight_protection
 from algorithms.neat import state as neat_state
 from algorithms.neat.config import build_neat_config
 from algorithms.neat.genetics import GENETICS, Neat092Genome, Neat092Reproduction, Reproduction
@@ -539,3 +540,75 @@ def test_spawn_counts_fit_the_population_where_neat_python_gives_up():
             agreed += 1
     assert agreed > 500
 
+
+
+def _genome(config, key, weights):
+    """A genome of output nodes 0-2 and the connection genes ``{(in, out): weight}``."""
+    genome = config.genome_type(key)
+    gc = config.genome_config
+    for node in range(3):
+        genome.nodes[node] = gc.node_gene_type(node)
+    for innovation, (link, weight) in enumerate(weights.items()):
+        gene = gc.connection_gene_type(link, innovation)
+        gene.weight, gene.enabled = weight, True
+        genome.connections[link] = gene
+    return genome
+
+
+def test_weight_protection_sums():
+    """Shared keys: squared weight difference to the reference's own gene; keys the reference
+    lacks: the squared weight; the reference's other genes count nothing."""
+    config = build_neat_config(41, 10)
+    reference = _genome(config, 1, {(-1, 0): 1.0, (-2, 0): -2.0, (-3, 1): 4.0})
+    genome = _genome(config, 2, {(-1, 0): 1.5, (-2, 0): 1.0, (-4, 2): 3.0})
+    assert weight_protection(genome, reference) == (0.5 ** 2 + 3.0 ** 2, 3.0 ** 2)
+    assert weight_protection(reference, genome) == (0.5 ** 2 + 3.0 ** 2, 4.0 ** 2)
+
+
+@pytest.mark.parametrize("genetics", GENETICS)
+def test_weight_protection_penalty(genetics):
+    """``penalty=wp``: selection fitness is raw fitness less, averaged over the last ``references``
+    task references, lambda_1 (``reg``) times the squared weight differences over the connection
+    keys a reference shares with the genome plus lambda_2 times the squared weights of its other
+    connections, computed here genome by genome from neat-python's genes."""
+    obs = _obs(seed=3)
+    lambda_1, lambda_2 = 0.4, 0.3
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=21, reg=lambda_1, references=2, penalty="wp",
+                        lambda_2=lambda_2, genetics=genetics)
+    for _task in range(3):
+        for _ in range(2):
+            _generation(opt, obs)
+        # the task's reference: a genome whose connection keys differ from the last reference's
+        raw = _fitness(opt.ask(), obs)
+        last = set(opt.reference_genomes[-1].connections) if opt.reference_genomes else set()
+        chosen = next(i for i, g in enumerate(opt.asked_genomes) if set(g.connections) != last)
+        bonus = torch.zeros(len(raw), dtype=torch.float64)
+        bonus[chosen] = 1000.0
+        opt.tell(raw, opt.regularise(raw) + bonus)
+        opt.end_task()
+    raw = _fitness(opt.ask(), obs)
+    references = opt.reference_genomes[-2:]
+    assert set(references[0].connections) != set(references[1].connections)
+
+    def penalty(genome, reference):
+        total = 0.0
+        for key, gene in genome.connections.items():
+            if key in reference.connections:
+                total += lambda_1 * (gene.weight - reference.connections[key].weight) ** 2
+            else:
+                total += lambda_2 * gene.weight ** 2
+        return total
+
+    expected = torch.tensor([r - sum(penalty(g, ref) for ref in references) / 2
+                             for r, g in zip(raw.tolist(), opt.asked_genomes)], dtype=torch.float64)
+    got = opt.regularise(raw)
+    assert torch.allclose(got, expected, atol=1e-9, rtol=0)
+    # the population holds genomes with keys each reference lacks, and with keys it shares
+    for ref in references:
+        assert any(set(g.connections) - set(ref.connections) for g in opt.asked_genomes)
+        assert any(set(g.connections) & set(ref.connections) for g in opt.asked_genomes)
+    distances = opt.distances_to_references()
+    assert torch.allclose(raw - lambda_1 * distances, got, atol=1e-9, rtol=0)
+    gd = NeatOptimizer(obs_dim=41, population_size=POP, seed=21, reg=lambda_1, references=2, genetics=genetics)
+    gd.load_state_dict(opt.state_dict())
+    assert not torch.allclose(gd.regularise(_fitness(gd.ask(), obs)), got)

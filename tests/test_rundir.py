@@ -134,8 +134,8 @@ def test_without_a_regulariser_its_options_make_no_configuration():
     configs = [none_l2, none_ewc, l2, ewc, neat_one, neat_three, _config(reg=11.0, given={"references": 3})]
     assert _groups(configs) == [[0, 1], [2], [3], [4, 5], [6]]
     assert [describe_config(c, configs) for c in (none_ewc, l2, ewc, neat_one)] == [
-        "sep-cmaes reg=0 red-green-red", "sep-cmaes reg=100 red-green-red importance=l2",
-        "sep-cmaes reg=100 red-green-red importance=ewc", "neat reg=0 red-green-red"]
+        "sep-cmaes reg=0 red-green-red", "sep-cmaes reg=100 red-green-red regulariser=l2",
+        "sep-cmaes reg=100 red-green-red regulariser=ewc", "neat reg=0 red-green-red"]
     # a sweep over lambda with one importance: nothing to name but lambda
     over_lambda = [none_l2, l2, _config(algo="sep-cmaes", reg=10.0)]
     assert [describe_config(c, over_lambda) for c in over_lambda] == [
@@ -229,3 +229,35 @@ def test_a_run_names_the_commit_of_the_code_it_imports(tmp_path):
     here = Path(__file__).resolve().parents[1]
     if (here / ".git").exists():
         assert library_versions()["lifelong-evo-commit"].split(" + ")[0] == _git(here, "rev-parse", "HEAD")
+
+
+def test_the_regulariser_is_one_setting_its_synonym_included():
+    """``--regulariser ewc`` and ``--option importance=ewc`` are one configuration, named by the
+    regulariser; a config.json written before the setting existed ran its family's default (NEAT
+    gd, an ES l2 or its importance); at lambda 0 the regulariser is no setting."""
+    from lifelong_evo.config import configure
+
+    def written(**stated):
+        config = configure(stated, machine=False)
+        return {**config.to_dict(), "env_resolved": config.env_config().to_dict(),
+                "algo_options_resolved": config.algo_options_resolved(), "versions": {"torch": "x"}}
+
+    synonym = written(algo="sep-cmaes", reg=1.0, seed=1, algo_options={"importance": "ewc"})
+    named = written(algo="sep-cmaes", reg=1.0, seed=2, regulariser="ewc")
+    assert synonym["regulariser"] == named["regulariser"] == "ewc"
+    assert synonym["algo_options"] == named["algo_options"] == {"importance": "ewc"}
+    old_ewc, old_l2, old_neat = (_config(seed=3, algo="sep-cmaes", reg=1.0, given={"importance": "ewc"}),
+                                 _config(seed=4, algo="sep-cmaes", reg=1.0), _config(seed=5, reg=1.0))
+    for old in (old_ewc, old_l2, old_neat):
+        del old["regulariser"]
+    gd, wp = written(reg=1.0, seed=6), written(reg=1.0, seed=7, regulariser="wp")
+    assert gd["regulariser"] == "gd" and wp["algo_options"] == {"penalty": "wp"}
+    functional = written(algo="sep-cmaes", reg=1.0, seed=8, regulariser="functional")
+    configs = [synonym, named, old_ewc, old_l2, old_neat, gd, wp, functional]
+    assert _groups(configs) == [[0, 1, 2], [3], [4, 5], [6], [7]]
+    assert [describe_config(c, configs) for c in (named, wp, functional)] == [
+        "sep-cmaes reg=1 red-green-red regulariser=ewc", "neat reg=1 red-green-red regulariser=wp",
+        "sep-cmaes reg=1 red-green-red regulariser=functional"]
+    at_zero = [written(reg=0.0, seed=1), written(reg=0.0, seed=2, regulariser="wp"), written(reg=0.0, seed=3, regulariser="functional")]
+    assert _groups(at_zero) == [[0, 1, 2]]
+    assert RunConfig.regulariser_of(old_ewc) == "ewc" and RunConfig.regulariser_of(old_neat) == "gd"

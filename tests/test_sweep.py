@@ -261,7 +261,7 @@ def test_model_specific_lambda_of_each_importance_has_the_unregularised_run_as_c
     assert chosen == {"l2": ["l2-seed1", "none-seed2"], "ewc": ["none-seed1", "ewc-seed2"]}
     configs = [config for config, _, _ in runs]
     assert sorted(model_specific_label(s["config"], configs) for s in selections) == [
-        "sep-cmaes reg=m.s. red-green-red importance=ewc", "sep-cmaes reg=m.s. red-green-red importance=l2"]
+        "sep-cmaes reg=m.s. red-green-red regulariser=ewc", "sep-cmaes reg=m.s. red-green-red regulariser=l2"]
 
 
 def test_variants_give_values_together(tmp_path, capsys):

@@ -1,5 +1,7 @@
 """NEAT on neat-python 2.0 behind the ask/tell interface, with the paper's genetic-distance
-regulariser.
+regulariser (``penalty="gd"``) or weight protection (``penalty="wp"``, ``weight_protection``), the
+reference code's other one (docs/algorithms.md gives both formulas); its task references exported
+for the functional regulariser (``reference_export``).
 
 One ``tell`` is one generation of neat-python's ``Population.run`` without the reporters:
 best-genome tracking on ``genome.fitness`` (the selection fitness), ``reproduce``,
@@ -31,14 +33,14 @@ import random
 import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import neat
 import torch
 from neat.export import export_network_json
 from neat.reporting import ReporterSet
 
-from ..base import GenerationReport, Optimizer, OptimizerOptions
+from ..base import FUNCTIONAL, GenerationReport, Optimizer, OptimizerOptions
 from . import state as neat_state
 from .config import CONFIG_FILE, build_neat_config, minimum_population
 from .export import check_export, genome_from_export
@@ -46,6 +48,8 @@ from .genetics import DEFAULT_GENETICS, Genetics
 from .network import NEAT_SIGMOID_SLOPE, CompiledPopulation, UnconnectedOutputs, compile_genomes, genome_layers
 
 STATE_FORMAT = "lifelong-evo/neat/2"
+Penalty = Literal["gd", "wp"]
+"""The regulariser's distance to a reference: the genome distance (gd) or weight protection (wp)."""
 
 
 def _take_counter(obj, attr: str) -> int | None:
@@ -63,7 +67,13 @@ class NeatOptions(OptimizerOptions):
     """NEAT's options (the NEAT parameters themselves are the paper's: ``config.ini``)."""
 
     references: int = field(default=1, metadata={"min": 1, "max": 1000})
-    """The regulariser's penalty is the mean genetic distance to the last this many task references."""
+    """The regulariser's penalty is the mean distance to the last this many task references."""
+    penalty: Penalty = "gd"
+    """The regulariser's distance: gd (the genome distance, the paper's) or wp (weight protection);
+    chosen with --regulariser."""
+    lambda_2: float = field(default=0.3, metadata={"min": 0, "max": 1e9})
+    """Weight protection's lambda_2, on the squared weights of connections the reference lacks
+    (lambda_1 is --reg)."""
     unconnected_outputs: UnconnectedOutputs = "zero"
     """Nodes without enabled inputs are dead (zero: neat-python 0.92, the paper's) or bias neurons
     (bias: neat-python 2.0); see ``algorithms.neat.network``."""
@@ -76,6 +86,23 @@ class NeatOptions(OptimizerOptions):
         if isinstance(self.references, bool) or not isinstance(self.references, numbers.Integral) \
                 or self.references < 1:
             raise ValueError(f"references must be an integer >= 1, got {self.references!r}")
+        if not (isinstance(self.lambda_2, numbers.Real) and math.isfinite(self.lambda_2) and self.lambda_2 >= 0):
+            raise ValueError(f"lambda_2 must be a finite number >= 0, got {self.lambda_2!r}")
+
+
+def weight_protection(genome, reference) -> tuple[float, float]:
+    """Weight protection's two sums for ``genome`` against one ``reference`` genome: over the
+    genome's connection genes (enabled or not) whose key, ``(input, output)``, the reference also
+    has, the squared difference of the two weights; over its other connection genes, the squared
+    weight. Membership and weight both come from ``reference``."""
+    shared = other = 0.0
+    for key, gene in genome.connections.items():
+        theirs = reference.connections.get(key)
+        if theirs is None:
+            other += gene.weight * gene.weight
+        else:
+            shared += (gene.weight - theirs.weight) ** 2
+    return shared, other
 
 
 class NeatOptimizer(Optimizer):
@@ -86,7 +113,8 @@ class NeatOptimizer(Optimizer):
     has_regularizer = True
     Options = NeatOptions
     diagnostics = ("distance_mean", "distance_std", "disabled_fraction")
-    regularizer_options = ("references",)
+    regularizer_options = ("references", "penalty", "lambda_2")
+    regularisers = {"gd": {"penalty": "gd"}, "wp": {"penalty": "wp"}, FUNCTIONAL: {}}
 
     @classmethod
     def check_population(cls, population_size: int, options: NeatOptions | None = None) -> None:
@@ -115,6 +143,7 @@ class NeatOptimizer(Optimizer):
         self.seed = int(seed)
         self.reg = float(reg)
         self.references = self.options.references
+        self.penalty = self.options.penalty
         self.unconnected_outputs = self.options.unconnected_outputs
         self.genetics = self.options.genetics
         self.device = torch.device(device)
@@ -196,21 +225,31 @@ class NeatOptimizer(Optimizer):
             raise ValueError(f"{what} must be finite, got {out}")
         return out
 
+    def distance(self, genome, reference) -> float:
+        """The regulariser's distance of ``genome`` to one ``reference``: neat-python's genome
+        distance (``gd``), or weight protection's ``shared + (lambda_2 / lambda_1) * other``
+        (``wp``, ``weight_protection``; lambda_1 is ``reg``, 1 at ``reg == 0``), so that the penalty
+        is ``reg`` times it either way."""
+        if self.penalty == "gd":
+            return reference.distance(genome, self.config.genome_config)
+        shared, other = weight_protection(genome, reference)
+        return shared + self.options.lambda_2 / (self.reg or 1.0) * other
+
     def distances_to_references(self) -> torch.Tensor | None:
-        """Mean neat-python distance of each asked genome to the last ``references`` task
+        """Mean distance (``distance``) of each asked genome to the last ``references`` task
         references (float64, ``(population,)``), or ``None`` before the first ``end_task``.
         Computed once per asked population and set of references."""
         if not self.reference_genomes:
             return None
         if self._distances is None:
             refs = self.reference_genomes[-self.references:]
-            gc = self.config.genome_config
-            self._distances = torch.tensor([sum(r.distance(g, gc) for r in refs) / len(refs)
+            self._distances = torch.tensor([sum(self.distance(g, r) for r in refs) / len(refs)
                                             for g in self.asked_genomes], dtype=torch.float64)
         return self._distances
 
     def regularise(self, fitness: torch.Tensor) -> torch.Tensor:
-        """``fitness - reg * mean distance to the references`` (``reg``: lambda); ``fitness``
+        """``fitness - reg * mean distance to the references`` (``reg``: lambda; under ``wp`` that
+        is ``lambda_1 * shared + lambda_2 * other``, averaged over the references); ``fitness``
         itself when ``reg == 0`` or before the first ``end_task``."""
         if self.reg == 0 or not self.reference_genomes:
             return fitness
@@ -372,15 +411,22 @@ class NeatOptimizer(Optimizer):
 
     # ---------------------------------------------------------------------------- export
 
+    def reference_export(self) -> dict[str, Any] | None:
+        """The latest task reference (``end_task``), exported as ``export`` does."""
+        return self._export_genome(self.reference_genomes[-1]) if self.reference_genomes else None
+
     def export(self, index: int) -> dict[str, Any]:
-        """Genome ``index`` of the last asked population, JSON-serialisable.
+        """Genome ``index`` of the last asked population, JSON-serialisable (``_export_genome``)."""
+        return self._export_genome(self.asked_genomes[index])
+
+    def _export_genome(self, genome) -> dict[str, Any]:
+        """``genome``, JSON-serialisable.
 
         ``genome``: every gene (disabled connections included), enough to rebuild it.
         ``network``: neat-python 2.0's ``neat.export`` JSON of its ``FeedForwardNetwork``
         (``created_timestamp`` dropped). Under ``unconnected_outputs == "zero"`` the outputs
         listed in ``zero_outputs`` are 0.0 whatever ``network`` says.
         """
-        genome = self.asked_genomes[index]
         gc = self.config.genome_config
         layers, _links = genome_layers(genome, gc, self.unconnected_outputs)
         computed = set().union(*layers) if layers else set()

@@ -176,7 +176,7 @@ def _file_layer(path: str):
     return axes, fixed, by_algo, values.get("preset"), values.get("name")
 
 
-_FIRST_AXES = ["algo", "schedule", "reg"]  # as in RunConfig.default_name
+_FIRST_AXES = ["algo", "schedule", "regulariser", "reg"]  # as in RunConfig.default_name
 VARIANTS = "variants"
 """The axis of a grid table whose values are sets of values given together (dicts by key)."""
 
@@ -324,7 +324,7 @@ def trial_name(values: dict[str, Any], config: RunConfig) -> str:
         return config.default_name()
     parts = []
     for key, value in values.items():
-        if key in ("algo", "schedule", "device"):
+        if key in ("algo", "schedule", "device", "regulariser"):
             parts.append(_slug(value))
         elif key == "record":
             parts.append("rec" if value else "norec")
