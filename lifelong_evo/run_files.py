@@ -9,7 +9,8 @@ one ``error:`` line), never as an exception halfway through its work. Nothing he
 
 - ``check_config``: config.json is a JSON object of ``RunConfig`` fields (and the keys written
   beside them), each of its field's type and within its bounds, ``env`` and ``algo_options``
-  objects, a schedule that parses and an arena the environment accepts.
+  objects, a regulariser its optimiser applies, a schedule that parses and an arena the
+  environment accepts.
 - ``check_summary``: summary.json is an object whose ``phases`` are the first tasks of
   config.json's schedule, in order (``metrics.summarise`` writes one per ended phase), and whose
   figures, where present, are numbers (or null) where the readers expect them: the per-phase
@@ -29,10 +30,10 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from algorithms import ExportError, check_export
+from algorithms import REGISTRY, ExportError, check_export
 from envs import ConfigError
 
-from .config import RunConfig
+from .config import DEFAULT_REGULARISER, RunConfig
 from .errors import RunDirError
 from .options import parse_value, schema
 from .schedule import ScheduleError
@@ -91,6 +92,10 @@ def check_config(values: Any, path: Path, written_beside: Iterable[str] = ()) ->
             raise RunDirError(f"{path}, key {name!r}: {error}: {FIX}") from None
     config = RunConfig(**typed)
     config = replace(config, regulariser=RunConfig.regulariser_of(config.to_dict()))  # an older config.json's
+    applies = getattr(REGISTRY.get(config.algo), "regularisers", None)
+    if applies is not None and config.regulariser not in (*applies, DEFAULT_REGULARISER):
+        raise RunDirError(f"{path}, key 'regulariser': {_shown(config.regulariser)} is no regulariser of "
+                          f"{config.algo} (it applies {', '.join(applies) or 'none'}): {FIX}")
     try:
         config.phases()
     except ScheduleError as error:

@@ -125,6 +125,8 @@ CASES = [
     ("config.json schedule with an unknown task", "neat", setting("schedule", "red:2,blue:2"),
      ["replay", "compare", "score"]),
     ("config.json population 'abc'", "neat", setting("population", "abc"), ["compare"]),
+    ("config.json regulariser no name", "neat", setting("regulariser", "l3"), ["replay", "compare", "score"]),
+    ("config.json regulariser another family's", "es", setting("regulariser", "wp"), ["replay", "compare"]),
     ("ES controller with wrong layer sizes", "es", every_controller(wrong_layer_sizes), ["replay", "score"]),
     ("ES controller parameters a string", "es", edit_json(FINAL, lambda c: c.update(parameters="abc")), ["replay"]),
     ("NEAT controller nodes a string", "neat", edit_json(FINAL, lambda c: c["genome"].update(nodes="abc")),
