@@ -243,12 +243,13 @@ class RunDir:
             if name in ("env", "algo_options"):
                 flag, mine = ("--env", given.env_config().to_dict()) if name == "env" else \
                     ("--option", given.algo_options_resolved())
-                theirs = written.get(f"{name}_resolved") or (stored.env_config().to_dict() if name == "env"
-                                                             else {**stored.algo_options_resolved()})
+                # a setting added since the run was written is at its default, which keeps the
+                # numbers runs had before it existed
+                theirs = {**(stored.env_config().to_dict() if name == "env" else stored.algo_options_resolved()),
+                          **(written.get(f"{name}_resolved") or {})}
                 mine, theirs = _as_stored(mine), _as_stored(theirs)
-                differences += [f"{flag} {key}={mine.get(key)!r} (stored: {theirs[key]!r})" if key in theirs
-                                else f"{flag} {key}={mine.get(key)!r} (stored: not set)"
-                                for key in sorted(set(mine) | set(theirs)) if mine.get(key) != theirs.get(key)]
+                differences += [f"{flag} {key}={mine.get(key)!r} (stored: {theirs[key]!r})"
+                                for key in sorted(theirs) if mine.get(key) != theirs[key]]
             elif _as_stored(value) != _as_stored(getattr(stored, name)):
                 differences.append(f"--{name.replace('_', '-')} {value!r} (stored: {getattr(stored, name)!r})")
         # a task's definition can change without a setting changing (a built-in task of another

@@ -4,6 +4,7 @@ a resumed log keeps only the generations its checkpoint covers. How config.json'
 runs into configurations and label them."""
 from __future__ import annotations
 
+import json
 import math
 import os
 import shutil
@@ -261,3 +262,19 @@ def test_the_regulariser_is_one_setting_its_synonym_included():
     at_zero = [written(reg=0.0, seed=1), written(reg=0.0, seed=2, regulariser="wp"), written(reg=0.0, seed=3, regulariser="functional")]
     assert _groups(at_zero) == [[0, 1, 2]]
     assert RunConfig.regulariser_of(old_ewc) == "ewc" and RunConfig.regulariser_of(old_neat) == "gd"
+
+
+def test_an_option_added_since_a_run_was_written_is_its_default(tmp_path):
+    """A config.json written before an optimiser's option existed (NEAT's ``lambda_2``,
+    ``penalty``) resumes under the defaults, which keep its numbers; an option stated otherwise
+    is a difference, against the default."""
+    config = RunConfig(algo="neat", reg=11.0, generations=3)
+    run = RunDir(tmp_path / "old")
+    run.path.mkdir()
+    run.write_config(config)
+    written = json.loads(run.config.read_text())
+    for name in ("lambda_2", "penalty"):
+        del written["algo_options_resolved"][name]
+    run.config.write_text(json.dumps(written))
+    assert run.setting_differences(config.to_dict()) == []
+    assert run.setting_differences({"algo_options": {"lambda_2": 0.5}}) == ["--option lambda_2=0.5 (stored: 0.3)"]
