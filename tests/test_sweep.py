@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -462,14 +463,16 @@ def test_an_overwriting_sweep_never_starts_a_trial_from_a_first_task_it_deletes(
             "--out", str(tmp_path), "--name", "shared"]
     assert main([*grid, "--together"]) == 0
     first = {name: (tmp_path / "shared" / name / "metrics.csv").read_bytes() for name in ("reg0", "reg2")}
-    old_first_task = (tmp_path / "shared/reg0/checkpoints/first-task-end.pt").stat().st_ino
+    # a second link keeps the old file's inode allocated, so the rewritten file cannot reuse its number
+    old_first_task = tmp_path / "old-first-task-end.pt"
+    os.link(tmp_path / "shared/reg0/checkpoints/first-task-end.pt", old_first_task)
     monkeypatch.setattr(ray_cluster, "run_jobs", in_turn)
     assert main([*grid, "--overwrite", "--share-first-task"]) == 0
     trials = _trials(tmp_path / "shared")
     assert trials["reg0"]["status"] == trials["reg2"]["status"] == "done", trials
     source = str(tmp_path.resolve() / "shared" / "reg0") if order == "sources-first" else ""
     assert trials["reg2"]["first_task_from"] == source, trials
-    assert (tmp_path / "shared/reg0/checkpoints/first-task-end.pt").stat().st_ino != old_first_task
+    assert (tmp_path / "shared/reg0/checkpoints/first-task-end.pt").stat().st_ino != old_first_task.stat().st_ino
     for name, metrics in first.items():
         assert (tmp_path / "shared" / name / "metrics.csv").read_bytes() == metrics, name
 
