@@ -16,6 +16,7 @@ from torch._dynamo.utils import counters
 from torch.utils._python_dispatch import TorchDispatchMode
 
 from envs import TASKS, ConfigError, ForagingConfig, ForagingEnv, Rewards, Task, outputs_to_wheels
+from envs.execution import COMPILE_OPTIONS
 from envs.foraging import _remainder, hash31, respawn_cells
 
 try:
@@ -850,7 +851,20 @@ def _colliding_start(env: ForagingEnv, generator: torch.Generator):
     return start
 
 
-def test_every_batch_size_compiles_whatever_the_process_compiled_before():
+@pytest.fixture
+def dynamo_graphs_run_eagerly(monkeypatch):
+    """``torch.compile`` captures dynamo's graphs as usual but runs them with the eager backend,
+    skipping inductor's code generation and C++ build (minutes per graph on CI's two cores): for
+    tests of which batch sizes dynamo compiles, a question its backend plays no part in."""
+    compile_with_inductor = torch.compile
+
+    def compile_without_inductor(function, *, dynamic, options):
+        assert options is COMPILE_OPTIONS, "the step's own options reach torch.compile"
+        return compile_with_inductor(function, dynamic=dynamic, backend="eager")
+    monkeypatch.setattr(torch, "compile", compile_without_inductor)
+
+
+def test_every_batch_size_compiles_whatever_the_process_compiled_before(dynamo_graphs_run_eagerly):
     """A batch size met after dynamo's own limit is compiled like the first one. Dynamo would
     run it eagerly, which rounds differently, so that a run's numbers would depend on the batch
     sizes its process had met before (a resume, the trial before it in a sweep's worker); going
@@ -872,7 +886,7 @@ def test_every_batch_size_compiles_whatever_the_process_compiled_before():
     assert torch._dynamo.config.fail_on_recompile_limit_hit
 
 
-def test_every_batch_size_compiles_in_a_thread_that_did_not_compile_it():
+def test_every_batch_size_compiles_in_a_thread_that_did_not_compile_it(dynamo_graphs_run_eagerly):
     """Dynamo's settings are each thread's own: an environment compiled in one thread and stepped
     in another (an evaluation thread of a later generation) still compiles its batch size, however
     many the process compiled before, and never drops to eager. The stepping thread here starts
