@@ -53,7 +53,7 @@ from .metrics import (INITIAL, FitnessStats, GenerationRecord, Retention, contro
 from .metrics_csv import GenerationLog, MetricsLayout, read_metrics
 from .networks import network_view, reference_name
 from .progress import Progress
-from .provenance import machine
+from .provenance import ARITHMETIC_FIELDS, machine, same_native_arithmetic
 from .recording import Recorder
 from .rundir import ResumeError, RunDir
 from .schedule import Phase, distinct_tasks, training_episodes
@@ -181,6 +181,8 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
                 run_dir.save_checkpoint(state.generation, _checkpoint_payload(config, optimizer, generator, state))
     here = machine(config.device)
     if not state.machines or {k: v for k, v in state.machines[-1].items() if k != "from_generation"} != here:
+        if state.machines and config.numerics == "native" and not same_native_arithmetic(state.machines[-1], here):
+            _warn_native_elsewhere(run_dir, state.machines[-1], here, state.generation)
         state.machines.append({"from_generation": state.generation, **here})
     layout = MetricsLayout(tuple(t.name for t in tasks), species=config.algo == "neat", centre=centre is not None,
                            diagnostics=optimizer.diagnostics)
@@ -320,6 +322,17 @@ def _make_optimizer(config: RunConfig, env_config, seed: int):
     reg = 0.0 if config.regulariser == FUNCTIONAL else config.reg
     return make_optimizer(config.algo, obs_dim=env_config.obs_dim, population_size=config.population, seed=seed,
                           reg=reg, device=config.device, **config.algo_options)
+
+
+def _warn_native_elsewhere(run_dir: RunDir, before: dict[str, Any], here: dict[str, Any], generation: int) -> None:
+    """Say, once, on stderr, that a native-arithmetic run continues on another kind of machine:
+    its numbers from ``generation`` on are this machine's, not those it would have had where it began."""
+    def kind(described: dict[str, Any]) -> str:
+        return ", ".join(str(described[name]) for name in ARITHMETIC_FIELDS if name in described)
+    print(f"warning: {run_dir.path} computes with --numerics native, whose numbers follow the machine: from "
+          f"generation {generation} it continues on {kind(here)}, not {kind(before)}, so its numbers from there "
+          "are this machine's (summary.json's machines name both); resume it on the machine kind it began on to "
+          "keep its trajectory", file=sys.stderr, flush=True)
 
 
 class _FunctionalReference:

@@ -80,3 +80,13 @@ def machine(device: str) -> dict[str, Any]:
     if device.startswith("cuda"):
         described["gpu"] = torch.cuda.get_device_name(torch.device(device))
     return described
+
+
+ARITHMETIC_FIELDS = ("cpu", "vector_isa", "gpu")
+"""The fields of ``machine``'s description that torch's native arithmetic follows (not ``cpus``:
+the evaluation threads, a run setting, decide how the work is split)."""
+
+
+def same_native_arithmetic(one: dict[str, Any], other: dict[str, Any]) -> bool:
+    """Whether two machines (``machine``'s descriptions) compute a native-arithmetic run alike."""
+    return all(one.get(name) == other.get(name) for name in ARITHMETIC_FIELDS)

@@ -430,6 +430,38 @@ def test_summary_names_the_machine_and_a_resume_elsewhere_adds_one(smoke_runs, t
     _same_numbers(again, smoke_runs / "neat")
 
 
+@pytest.mark.parametrize("numerics", ["native", "portable"])
+def test_a_native_run_resumed_on_another_machine_kind_says_so(tmp_path, monkeypatch, capsys, numerics):
+    """Under native arithmetic the numbers follow the machine, so a run that continues on another
+    CPU (or under other vector instructions) leaves the trajectory it began on: one warning line
+    names both machines. Portable runs, and native ones resumed on their own kind of machine (a
+    node with other CPU counts), continue without one."""
+    from lifelong_evo import loop
+    from lifelong_evo.provenance import machine
+
+    flags = [*TINY, "--algo", "neat", "--preset", "smoke", "--numerics", numerics, "--out", str(tmp_path),
+             "--no-record", "--quiet"]
+    assert main([*flags, "--name", "run"]) == 0
+    here = machine("cpu")
+    for name, elsewhere in (("same-kind", {**here, "cpus": here["cpus"] + 3}),
+                            ("other-kind", {**here, "cpu": "Another CPU (family 1, model 2)"}),
+                            ("other-isa", {**here, "vector_isa": "DEFAULT" if here["vector_isa"] != "DEFAULT" else "AVX2"})):
+        shutil.copytree(tmp_path / "run", tmp_path / name)
+        for later in sorted((tmp_path / name).glob("checkpoints/generation-*.pt"))[1:]:
+            later.unlink()
+        monkeypatch.setattr(loop, "machine", lambda device, described=elsewhere: described)
+        capsys.readouterr()
+        assert main([*flags, "--name", name, "--resume"]) == 0
+        warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
+        if numerics == "native" and name != "same-kind":
+            assert len(warnings) == 1 and "--numerics native" in warnings[0], warnings
+            changed = "Another CPU" if name == "other-kind" else elsewhere["vector_isa"]
+            assert changed in warnings[0] and "generation " in warnings[0], warnings
+        else:
+            assert warnings == [], warnings
+        assert len(json.loads((tmp_path / name / "summary.json").read_text())["machines"]) == 2
+
+
 def test_runs_played_together_give_the_numbers_they_give_alone(tmp_path):
     """Three runs in step, their evaluations in one batch each generation: other algorithms,
     population sizes and schedule lengths, so that at times one run evaluates green while another
