@@ -14,6 +14,7 @@ that is ``41*16 + 16 + 16*3 + 3 = 723`` parameters.
 """
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import torch
@@ -74,11 +75,15 @@ class MLPPolicy:
         self.layer_sizes = tuple(int(s) for s in layer_sizes)
         self.params = params
         self.population_size = int(params.shape[0])
-        # (P, in, out) weights (on numerics.exact_bmm's grid, and contiguous for the native
-        # baddbmm, which is faster with a contiguous right operand) and (P, 1, out) biases, once
+        # (P, in, out) weights (contiguous for the native baddbmm, which is faster with a
+        # contiguous right operand) and (P, 1, out) biases, once
         self._layers = [(w.transpose(1, 2).contiguous(), b.unsqueeze(1).contiguous())
                         for w, b in unflatten(params, self.layer_sizes)]
-        self._grids = [numerics.grid_weights(w_t) for w_t, _ in self._layers]
+
+    @functools.cached_property
+    def _grids(self) -> list[torch.Tensor]:
+        """The weights on ``numerics.exact_bmm``'s grid, made at the first portable call."""
+        return [numerics.grid_weights(w_t) for w_t, _ in self._layers]
 
     def __call__(self, observations: torch.Tensor) -> torch.Tensor:
         if observations.ndim != 4 or observations.shape[0] != self.population_size \
@@ -89,8 +94,9 @@ class MLPPolicy:
         p, e, a, d = observations.shape
         x = observations.to(self.params.dtype).reshape(p, e * a, d)
         last = len(self._layers) - 1
-        for i, ((w_t, b), w_grid) in enumerate(zip(self._layers, self._grids)):
-            x = torch.baddbmm(b, x, w_t) if numerics.native() else numerics.exact_bmm(x, w_grid, b)
+        native = numerics.native()
+        for i, (w_t, b) in enumerate(self._layers):
+            x = torch.baddbmm(b, x, w_t) if native else numerics.exact_bmm(x, self._grids[i], b)
             x = numerics.sigmoid(x) if i == last else numerics.tanh(x)
         return x.reshape(p, e, a, N_OUTPUTS)
 

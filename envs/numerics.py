@@ -23,9 +23,9 @@ What is used instead, each from IEEE's correctly rounded operations only (``+ - 
   add their chunks in a fixed order).
 
 The module is shared by the arena and the built-in controllers (``algorithms``), and knows
-nothing of either. ``use("native")`` switches both back to torch's own functions (faster, and
-the numbers of runs made before this module existed, on the machine that made them): the choice
-is the process's, made before a run plays its first episode (``RunConfig.numerics``).
+nothing of either. ``use("native")`` switches both to torch's own functions (faster, with numbers
+that follow the machine and the speed settings): the choice is the process's, made before a run
+plays its first episode (``RunConfig.numerics``).
 """
 from __future__ import annotations
 

@@ -47,6 +47,7 @@ first (see ``CompiledPopulation``).
 """
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from collections import defaultdict
@@ -153,9 +154,13 @@ class CompiledPopulation:
         self.population_size = int(w_in.shape[0])
         self.n_inputs = int(w_in.shape[1])
         self.n_outputs = int(w_in.shape[2]) - n_hidden
-        # the weights on numerics.exact_bmm's grid, once per generation
-        self._w_in_grid = numerics.grid_weights(w_in)
-        self._block_grids = [None if w is None else numerics.grid_weights(w) for _, _, w in blocks]
+
+    @functools.cached_property
+    def _grids(self) -> tuple[torch.Tensor, list[torch.Tensor | None]]:
+        """The input weights and each block's on ``numerics.exact_bmm``'s grid, made at the first
+        portable call (once per generation)."""
+        return numerics.grid_weights(self.w_in), [None if w is None else numerics.grid_weights(w)
+                                                  for _, _, w in self.blocks]
 
     @property
     def device(self) -> torch.device:
@@ -192,12 +197,13 @@ class CompiledPopulation:
             if numerics.native():
                 return self._native_call(x).view(P, E, A, self.n_outputs)
             # input part of every slot plus the bias, (P, E*A, N), moved to (P, N, E*A)
-            z = numerics.exact_bmm(x, self._w_in_grid, self.bias.mT).mT.contiguous()
-            for (start, stop, _), w_grid in zip(self.blocks[:-1], self._block_grids):  # hidden depths
+            w_in_grid, block_grids = self._grids
+            z = numerics.exact_bmm(x, w_in_grid, self.bias.mT).mT.contiguous()
+            for (start, stop, _), w_grid in zip(self.blocks[:-1], block_grids):  # hidden depths
                 block = z[:, start:stop]
                 block.copy_(numerics.sigmoid(block if w_grid is None else _add_weighted(block, w_grid, z, start)))
             start, _stop, _ = self.blocks[-1]  # outputs
-            w_grid = self._block_grids[-1]
+            w_grid = block_grids[-1]
             pre = z[:, start:] if w_grid is None else _add_weighted(z[:, start:], w_grid, z, start)
             return numerics.sigmoid(pre).mT.contiguous().view(P, E, A, self.n_outputs)
 

@@ -47,7 +47,7 @@ held-out figures where the runs have the block and their selection-time ones els
 always training ones. comparison.csv holds every kind whatever ``--episodes`` says.
 
 Baselines. Without ``--baseline`` each configuration with a regulariser or a baseline setting
-(rehearsal, joint, from scratch, reference_every) is compared with fine-tuning (lambda 0 without
+(rehearsal, joint, from scratch, reference_every, archive) is compared with fine-tuning (lambda 0 without
 them) of the same algorithm and otherwise the same settings, where such runs exist.
 ``--baseline KEY=VALUE,...`` names one configuration per schedule by its settings
 (``baseline_settings``: ``algo``, ``reg``, ``schedule``, the other settings of ``RunConfig``, the

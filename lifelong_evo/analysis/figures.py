@@ -4,7 +4,7 @@
 It reads run directories through ``lifelong_evo.runs`` and only draws. For each group of runs
 that share a configuration (``runs.group_runs``: repetitions that differ in seed or speed settings),
 with ``<prefix>`` = ``<algo>-<schedule>-reg<lambda>`` followed by whatever else sets the
-configuration apart from the others plotted (``runs.config_differences``, e.g. ``-importance-ewc``):
+configuration apart from the others plotted (``runs.config_differences``, e.g. ``-regulariser-ewc``):
 
 ``<prefix>-retention-pop.png``  current performance C (solid) and population retention R_pop
                                  (dashed, dots where measured) per task colour over generations;
@@ -339,7 +339,7 @@ def save(fig, path: Path) -> Path:
 
 def slug(config: dict[str, Any], differences: list[str] = ()) -> str:
     """A file-name prefix: ``neat-red-green-red-reg11``, then what sets the configuration apart
-    (``config_differences``: ``sep-cmaes-red-green-red-reg10-importance-ewc``)."""
+    (``config_differences``: ``sep-cmaes-red-green-red-reg10-regulariser-ewc``)."""
     text = "-".join([f"{config.get('algo')}-{config.get('schedule')}-reg{config.get('reg', 0):g}", *differences])
     return re.sub(r"[^A-Za-z0-9.]+", "-", text).strip("-")
 
