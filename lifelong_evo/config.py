@@ -92,8 +92,9 @@ class RunConfig:
     a rule that needs no task boundary, for schedules with blends (a>b:N)."""
     archive: bool = False
     """Skill archive: keep each task's top controller at its end, and put it back into the
-    population when the task returns (NEAT: in place of the worst genome; an ES: as the centre);
-    composes with lambda and every baseline (docs/algorithms.md, The skill archive)."""
+    population when the task returns (NEAT: in place of the newest offspring, not yet evaluated, so
+    the elites are kept; an ES: as the centre); composes with lambda and every baseline
+    (docs/algorithms.md, The skill archive)."""
     gap_window: int = field(default=20, metadata={"min": 0, "max": MAX_GENERATIONS})
     """Stability gap: score every earlier task in each of the first this many generations after a
     switch, on episodes of their own (0: off; docs/metrics.md)."""

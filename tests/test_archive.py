@@ -1,10 +1,14 @@
 """The skill archive (``--archive``): each task's top controller kept at its end and put back
-(``Optimizer.adopt``) when the task returns: NEAT in place of its worst genome, an ES as its centre;
+(``Optimizer.adopt``) when the task returns: NEAT in place of its newest offspring (never evaluated),
+under 2.0's genetics with the population's innovation numbers; an ES as its centre;
 the right task's controller, the population's size kept, resumed bit for bit, scored held out."""
 from __future__ import annotations
 
+import copy
 import json
 import shutil
+import warnings
+from collections import defaultdict
 
 import pytest
 import torch
@@ -12,15 +16,17 @@ import torch
 from algorithms import REGISTRY, make_optimizer
 from algorithms.base import Optimizer
 from algorithms.neat import NeatOptimizer
+from algorithms.neat.genetics import GENETICS
 from lifelong_evo.commands.cli import main
 
 OBS_DIM = 31
 COMMON = ["--preset", "smoke", "--env", "duration=60", "--no-record", "--quiet"]
 
 
-def _evolved(algo: str, generations: int = 3, seed: int = 1):
-    """An optimiser told ``generations`` generations of random fitness, and its best controller of the first."""
-    optimizer = make_optimizer(algo, obs_dim=OBS_DIM, population_size=20, seed=seed)
+def _evolved(algo: str, generations: int = 3, seed: int = 1, **options):
+    """An optimiser (with ``options``) told ``generations`` generations of random fitness, and its
+    best controller of the first."""
+    optimizer = make_optimizer(algo, obs_dim=OBS_DIM, population_size=20, seed=seed, **options)
     draws = torch.Generator().manual_seed(seed)
     best = None
     for _ in range(generations):
@@ -31,10 +37,19 @@ def _evolved(algo: str, generations: int = 3, seed: int = 1):
     return optimizer, best
 
 
-def test_neat_adopt_replaces_the_worst_genome_and_keeps_the_size():
+def _without_innovation(genome: dict) -> dict:
+    """An exported genome's genes without their innovation numbers (2.0's adopt renumbers them)."""
+    return {"nodes": genome["nodes"],
+            "connections": [{k: v for k, v in c.items() if k != "innovation"} for c in genome["connections"]]}
+
+
+@pytest.mark.parametrize("genetics", GENETICS)
+def test_neat_adopt_replaces_the_newest_offspring_and_keeps_the_size(genetics):
     """The adopted genome takes the place of the newest offspring (never evaluated, so the lowest
-    fitness; the elites keep theirs), under a new key, in a species; the next ask plays it."""
-    optimizer, best = _evolved("neat")
+    fitness; the elites keep theirs), under a new key, in a species; the next ask plays it, every
+    gene as exported (under 0.92 its innovation numbers too; 2.0's are the population's) and, under
+    2.0, with the time constant every node of the population has."""
+    optimizer, best = _evolved("neat", genetics=genetics)
     before = dict(optimizer.population)
     unevaluated = [key for key, genome in before.items() if genome.fitness is None]
     assert unevaluated and len(unevaluated) < len(before)  # offspring and elites
@@ -45,15 +60,19 @@ def test_neat_adopt_replaces_the_worst_genome_and_keeps_the_size():
     assert added > max(before) and optimizer.reproduction.ancestors[added] == ()
     assert set(optimizer.species.genome_to_species) == set(optimizer.population)
     assert {k for s in optimizer.species.species.values() for k in s.members} == set(optimizer.population)
+    if genetics == "2.0":
+        assert {n.time_constant for g in optimizer.population.values() for n in g.nodes.values()} == {1.0}
     optimizer.ask()
-    played = [optimizer.export(i) for i in range(optimizer.population_size)]
-    assert [e["genome"] for e in played].count(best["genome"]) >= 1
-    assert next(e for e in played if e["genome_key"] == added)["genome"] == best["genome"]
+    played = optimizer.export([g.key for g in optimizer.asked_genomes].index(added))["genome"]
+    assert _without_innovation(played) == _without_innovation(best["genome"])
+    if genetics == "0.92":
+        assert played == best["genome"]
 
 
 def test_neat_adopt_keeps_the_innovation_bookkeeping_valid():
-    """A genome whose node keys and innovation numbers lie beyond a population's counters (a
-    from-scratch population's) moves them on, so that evolution never reuses them."""
+    """Under 0.92 (innovation numbers are labels, kept), a genome whose node keys and innovation
+    numbers lie beyond a population's counters (a from-scratch population's) moves them on, so
+    that evolution never reuses them."""
     optimizer, best = _evolved("neat", generations=1, seed=2)
     genome = best["genome"]
     link = genome["connections"][0]
@@ -71,15 +90,107 @@ def test_neat_adopt_keeps_the_innovation_bookkeeping_valid():
         optimizer.tell(fitness, fitness)
 
 
+def _named(population, by: str) -> dict:
+    """Over ``population``'s connection genes: each key with the innovation numbers it carries
+    (``by="key"``), or each number with the keys that carry it (``by="innovation"``)."""
+    named = defaultdict(set)
+    for genome in population.values():
+        for key, gene in genome.connections.items():
+            if by == "key":
+                named[key].add(gene.innovation)
+            else:
+                named[gene.innovation].add(key)
+    return named
+
+
+def test_neat_adopt_into_a_fresh_population_takes_its_innovation_numbers():
+    """--archive with --from-scratch under 2.0: the archived genome's innovation numbers are its old
+    population's tracker's, which in a fresh population (a new tracker, numbering in first-seen
+    order) name other keys. Adopted, each connection carries the number the fresh population gives
+    its key, a key it lacks a new number from its tracker, so that every number names one key and
+    crossover pairs homologous genes only."""
+    _, best = _evolved("neat", seed=1, genetics="2.0")
+    fresh = make_optimizer("neat", obs_dim=OBS_DIM, population_size=20, seed=2, genetics="2.0")
+    numbers = _named(fresh.population, by="key")
+    assert all(len(carried) == 1 for carried in numbers.values())  # a fresh population numbers each key once
+    exported = {(c["in"], c["out"]): c["innovation"] for c in best["genome"]["connections"]}
+    assert any(numbers[key] != {number} for key, number in exported.items() if key in numbers)
+    assert any(key not in numbers for key in exported)
+    counter = fresh.reproduction.innovation_tracker.global_counter
+    fresh.adopt(best)
+    adopted = fresh.population[max(fresh.population)]
+    assert set(adopted.connections) == set(exported)
+    for key, gene in adopted.connections.items():
+        if key in numbers:
+            assert {gene.innovation} == numbers[key], key
+    new = sorted(gene.innovation for key, gene in adopted.connections.items() if key not in numbers)
+    assert new == list(range(counter + 1, counter + 1 + len(new)))
+    draws = torch.Generator().manual_seed(0)
+    with warnings.catch_warnings():
+        # neat-python's crossover warns where two parents' genes share a number but not a key
+        warnings.filterwarnings("error", "Innovation number collision", RuntimeWarning)
+        for generation in range(3):  # evolution goes on, the adopted genome the fittest parent at first
+            assert all(len(keys) == 1 for keys in _named(fresh.population, by="innovation").values())
+            fresh.ask()
+            fitness = torch.rand(fresh.population_size, generator=draws)
+            if generation == 0:
+                fitness[fresh.asked_genomes.index(adopted)] = 2.0
+            fresh.tell(fitness, fitness)
+
+
+def test_neat_adopt_takes_the_number_most_genomes_carry():
+    """Under 2.0 a key that the population's genomes carry under several numbers (2.0 numbers a key
+    again when a later generation adds it again) takes the number most of them carry, the oldest
+    (lowest) among equally many."""
+    optimizer, best = _evolved("neat", genetics="2.0")
+    victim = max(k for k, g in optimizer.population.items() if g.fitness is None)  # adopt replaces it
+    carriers = defaultdict(list)
+    for genome_key, genome in sorted(optimizer.population.items()):
+        if genome_key != victim:
+            for key, gene in genome.connections.items():
+                carriers[key].append(gene)
+    exported = [(c["in"], c["out"]) for c in best["genome"]["connections"]]
+    majority, tie = [key for key in exported if len(carriers[key]) >= 3][:2]
+    fresh = optimizer.reproduction.innovation_tracker.global_counter + 1
+    for gene in carriers[majority][1:]:  # a newer number on all but one: it is the most common
+        gene.innovation = fresh
+    half = len(carriers[tie]) // 2
+    oldest = carriers[tie][0].innovation
+    for i, gene in enumerate(carriers[tie]):  # as many carry the oldest number as a newer one
+        gene.innovation = oldest if i < half else fresh + 1 if i < 2 * half else fresh + 2
+    optimizer.adopt(best)
+    adopted = optimizer.population[max(optimizer.population)]
+    assert adopted.connections[majority].innovation == fresh
+    assert adopted.connections[tie].innovation == oldest
+
+
+def _assert_identical(state, expected, where: str = "state") -> None:
+    """``state`` holds exactly ``expected``: the same keys and items, every tensor element for
+    element with its dtype (a ``repr`` abbreviates a tensor of over 1000 elements with "...")."""
+    if isinstance(expected, torch.Tensor):
+        assert isinstance(state, torch.Tensor) and state.dtype == expected.dtype and torch.equal(state, expected), where
+    elif isinstance(expected, dict):
+        assert isinstance(state, dict) and state.keys() == expected.keys(), where
+        for key in expected:
+            _assert_identical(state[key], expected[key], f"{where}[{key!r}]")
+    elif isinstance(expected, (list, tuple)):
+        assert type(state) is type(expected) and len(state) == len(expected), where
+        for i, (item, expected_item) in enumerate(zip(state, expected)):
+            _assert_identical(item, expected_item, f"{where}[{i}]")
+    else:
+        assert state == expected, where
+
+
 @pytest.mark.parametrize("algo", ["sep-cmaes", "cmaes", "openai-es", "pgpe", "snes"])
 def test_es_adopt_moves_the_centre_and_keeps_the_spread(algo):
     optimizer, best = _evolved(algo)
     size = optimizer.population_size
-    spread = {k: v for k, v in optimizer._searcher_state().items() if k not in ("m", "mu")}
+    # a copy: the centre optimiser's state holds the live tensors, which adopt could change in place
+    spread = copy.deepcopy({k: v for k, v in optimizer._searcher_state().items() if k not in ("m", "mu")})
     optimizer.adopt(best)
     assert optimizer.centre.tolist() == best["parameters"]
     after = {k: v for k, v in optimizer._searcher_state().items() if k not in ("m", "mu")}
-    assert repr(after) == repr(spread)
+    _assert_identical(after, spread, "spread")
     optimizer.ask()
     assert optimizer.population_size == size
     assert optimizer.export(optimizer.centre_index)["parameters"] == best["parameters"]

@@ -16,6 +16,7 @@ from algorithms.neat import NeatOptimizer
 from algorithms.neat.optimizer import weight_protection
 from algorithms.neat import state as neat_state
 from algorithms.neat.config import build_neat_config
+from algorithms.neat.export import fixed_node_attributes, genome_from_export
 from algorithms.neat.genetics import GENETICS, Neat092Genome, Neat092Reproduction, Reproduction
 
 POP = 40
@@ -510,6 +511,40 @@ def test_export_is_json(genetics):
         assert len(data["genome"]["connections"]) == len(genome.connections)
         assert data["network"]["network_type"] == "feedforward"
         assert data["zero_outputs"] == [i for i in range(3) if policy.zero_outputs[index, i]]
+
+
+@pytest.mark.parametrize("genetics", GENETICS)
+def test_genome_from_export_rebuilds_every_gene_without_drawing(genetics):
+    """A genome rebuilt from its export has every attribute of every gene the original has,
+    2.0's ``time_constant`` (which exports do not carry) included, and the rebuilding draws
+    nothing from ``random``, so an adopt or a drawing leaves a run's numbers as they were."""
+    obs = _obs(seed=5)
+    opt = NeatOptimizer(obs_dim=41, population_size=POP, seed=11, genetics=genetics)
+    for _ in range(2):
+        _generation(opt, obs)
+    opt.ask()
+
+    def genes(genome):
+        return [(key, getattr(gene, "innovation", None),
+                 [(attribute.name, getattr(gene, attribute.name)) for attribute in gene._gene_attributes])
+                for part in (genome.nodes, genome.connections) for key, gene in sorted(part.items())]
+
+    for index, genome in enumerate(opt.asked_genomes):
+        exported = json.loads(json.dumps(opt.export(index)))
+        state = random.getstate()
+        rebuilt = genome_from_export(exported, opt.config)
+        assert random.getstate() == state
+        assert genes(rebuilt) == genes(genome)
+
+
+def test_an_export_cannot_rebuild_a_node_attribute_that_varies():
+    """2.0's time constant is rebuilt as the constant the paper's configuration makes it; where a
+    configuration let it vary, rebuilding refuses rather than give every node that constant."""
+    config = build_neat_config(41, POP, genetics="2.0")
+    assert fixed_node_attributes(config.genome_config) == {"time_constant": 1.0}
+    config.genome_config.time_constant_mutate_rate = 0.1
+    with pytest.raises(ValueError, match="node attribute time_constant varies"):
+        fixed_node_attributes(config.genome_config)
 
 
 def test_spawn_counts_fit_the_population_where_neat_python_gives_up():

@@ -11,6 +11,7 @@ import torch
 
 from algorithms import make_optimizer
 from algorithms.mlp import n_parameters
+from algorithms.neat.genetics import GENETICS
 from lifelong_evo.analysis import figures as plots
 from lifelong_evo.commands.cli import main
 from lifelong_evo.networks import network_view, reference_name, task_end_views
@@ -20,10 +21,12 @@ PNG = b"\x89PNG\r\n\x1a\n"
 ENDS = ("task0-red", "task1-green", "task2-red")
 
 
-def test_neat_distance_is_the_regularisers():
+@pytest.mark.parametrize("genetics", GENETICS)
+def test_neat_distance_is_the_regularisers(genetics):
     """The genetic distance drawn is the one the regulariser penalises: the reference it took at
-    the task end (an elite, so in the next population) against every genome."""
-    optimizer = make_optimizer("neat", obs_dim=31, population_size=20, seed=3, reg=1.0)
+    the task end (an elite, so in the next population) against every genome (under 2.0 the genomes
+    rebuilt from their exports have the time constant the distance reads)."""
+    optimizer = make_optimizer("neat", obs_dim=31, population_size=20, seed=3, reg=1.0, genetics=genetics)
     optimizer.ask()
     fitness = torch.rand(optimizer.population_size, generator=torch.Generator().manual_seed(0))
     optimizer.tell(fitness, fitness)

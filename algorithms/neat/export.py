@@ -22,19 +22,44 @@ CONNECTION_FIELDS = {"in": INTEGER, "out": INTEGER, "weight": NUMBER, "enabled":
 
 
 def genome_from_export(exported: dict, config):
-    """A neat-python genome with every gene of the export (disabled connections included)."""
+    """A neat-python genome with every gene of the export (disabled connections included); the
+    node attributes an export does not carry have the value the configuration fixes
+    (``fixed_node_attributes``). Draws nothing from ``random``."""
     genome = config.genome_type(exported["genome_key"])
     genome_config = config.genome_config
+    fixed = fixed_node_attributes(genome_config)
     for node in exported["genome"]["nodes"]:
         gene = genome_config.node_gene_type(node["key"])
         gene.bias, gene.response = node["bias"], node["response"]
         gene.activation, gene.aggregation = node["activation"], node["aggregation"]
+        for name, value in fixed.items():
+            setattr(gene, name, value)
         genome.nodes[gene.key] = gene
     for link in exported["genome"]["connections"]:
         gene = genome_config.connection_gene_type((link["in"], link["out"]), link["innovation"])
         gene.weight, gene.enabled = link["weight"], link["enabled"]
         genome.connections[gene.key] = gene
     return genome
+
+
+def fixed_node_attributes(genome_config) -> dict[str, float]:
+    """The node gene attributes an export does not carry (neat-python 2.0's ``time_constant``; 0.92's
+    genes have none), each with the one value every node has: its initial mean, clamped, since the
+    configuration draws it with standard deviation 0 and never mutates or replaces it. Set directly
+    rather than by ``init_attributes``, which would draw from ``random`` and so change the run's
+    numbers. ValueError for an attribute the configuration lets vary: the export would lose it."""
+    fixed = {}
+    for attribute in genome_config.node_gene_type._gene_attributes:
+        if attribute.name in NODE_FIELDS:
+            continue
+        varying = {name: value for name in (attribute.init_stdev_name, attribute.mutate_rate_name,
+                                            attribute.replace_rate_name)
+                   if (value := getattr(genome_config, name)) != 0}
+        if varying:
+            raise ValueError(f"node attribute {attribute.name} varies ({varying}): an export does not "
+                             "carry it, so cannot rebuild the genome")
+        fixed[attribute.name] = attribute.clamp(getattr(genome_config, attribute.init_mean_name), genome_config)
+    return fixed
 
 
 def policy_from_export(exported: dict, device: str | torch.device = "cpu") -> CompiledPopulation:

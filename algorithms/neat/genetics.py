@@ -87,7 +87,8 @@ def check_genetics(value) -> str:
 
 @dataclass(frozen=True)
 class GeneticsVersion:
-    """What a run's genetics decides: its classes and how its reproduction sizes species."""
+    """What a run's genetics decides: its classes, how its reproduction sizes species and how its
+    crossover lines genes up."""
 
     genome: type
     reproduction: type
@@ -97,6 +98,10 @@ class GeneticsVersion:
     """Reproduction makes every generation exactly ``pop_size`` (2.0), giving each species at
     least max(``elitism``, ``min_species_size``) genomes, or lets the population drift by a few
     genomes (0.92), each species keeping its ``elitism`` best."""
+    crossover_by_innovation: bool
+    """Crossover lines connection genes up by innovation number (2.0), so a genome brought in
+    from elsewhere must carry the numbers this population gives its connections; or by key (0.92),
+    which reads no innovation number."""
 
     @property
     def components(self) -> tuple[type, type, type, type]:
@@ -117,9 +122,9 @@ def genetics_version(genetics: str) -> GeneticsVersion:
     """The classes and rules of ``genetics`` (one of ``GENETICS``; ValueError for another value)."""
     if check_genetics(genetics) == "0.92":
         return GeneticsVersion(Neat092Genome, Neat092Reproduction, Neat092SpeciesSet, Neat092Stagnation,
-                               exact_population_size=False)
+                               exact_population_size=False, crossover_by_innovation=False)
     return GeneticsVersion(neat.DefaultGenome, Reproduction, SpeciesSet, neat.DefaultStagnation,
-                           exact_population_size=True)
+                           exact_population_size=True, crossover_by_innovation=True)
 
 
 # --------------------------------------------------------------------------------------------

@@ -25,6 +25,7 @@ not disturbed. ``state_dict`` holds that state, so a resumed run continues bit-f
 """
 from __future__ import annotations
 
+import collections
 import itertools
 import json
 import math
@@ -44,7 +45,7 @@ from ..base import FUNCTIONAL, GenerationReport, Optimizer, OptimizerOptions
 from . import state as neat_state
 from .config import CONFIG_FILE, build_neat_config, minimum_population
 from .export import check_export, genome_from_export
-from .genetics import DEFAULT_GENETICS, Genetics
+from .genetics import DEFAULT_GENETICS, Genetics, genetics_version
 from .network import NEAT_SIGMOID_SLOPE, CompiledPopulation, UnconnectedOutputs, compile_genomes, genome_layers
 
 STATE_FORMAT = "lifelong-evo/neat/2"
@@ -315,10 +316,12 @@ class NeatOptimizer(Optimizer):
         """Put the exported genome (``export``) back into the population the next ``ask`` returns,
         in place of the genome with the lowest fitness of the last generation: a new offspring has
         not been evaluated yet and counts lowest (the newest first), so the elites are kept. It
-        gets a new genome key; the node and innovation counters move past its node keys and
-        innovation numbers (a from-scratch population's counters may lie below them), and the
-        population is speciated again, as neat-python speciates a new one. The population's size
-        is unchanged."""
+        gets a new genome key, and the node counter moves past its node keys (a from-scratch
+        population's may lie below them). Where crossover lines genes up by innovation number
+        (genetics 2.0) its connections are renumbered as this population numbers them
+        (``_renumber``); otherwise (0.92) its numbers are labels only and the innovation tracker
+        moves past them. The population is then speciated again, as neat-python speciates a new
+        one. The population's size is unchanged."""
         if self._asked is not None:
             raise RuntimeError("adopt() goes between tell() and the next ask()")
         check_export(exported, self.obs_dim)
@@ -330,16 +333,37 @@ class NeatOptimizer(Optimizer):
         genome = genome_from_export({**exported, "genome_key": next(self.reproduction.genome_indexer)}, self.config)
         del self.population[victim.key]
         self.reproduction.ancestors.pop(victim.key, None)
+        if genetics_version(self.genetics).crossover_by_innovation:
+            self._renumber(genome)
+        else:  # labels only; moving past them keeps any label from naming two keys
+            tracker = self.reproduction.innovation_tracker
+            tracker.global_counter = max([tracker.global_counter, *(c.innovation for c in genome.connections.values())])
         self.population[genome.key] = genome
         self.reproduction.ancestors[genome.key] = ()
         gc = self.config.genome_config
         following = _take_counter(gc, "node_indexer")
         gc.node_indexer = itertools.count(max(max(genome.nodes) + 1, following or 0))
-        tracker = self.reproduction.innovation_tracker
-        tracker.global_counter = max([tracker.global_counter, *(c.innovation for c in genome.connections.values())])
         with self._neat_random():  # the generation this population was speciated in (tell counts on after it)
             self.species.speciate(self.config, self.population, max(self.generation - 1, 0))
         self._distances = None
+
+    def _renumber(self, genome) -> None:
+        """Give each connection of ``genome`` (not yet in the population) the innovation number the
+        population gives its key: the one most of the population's genes with that key carry, the
+        oldest (lowest) among equally common ones (2.0's tracker numbers a key again when a later
+        generation adds it again). A key no genome has gets a number from the innovation tracker,
+        as a connection added by mutation does. An exported genome's numbers are another tracker's
+        (a from-scratch population starts a new one, numbering in first-seen order, so the same
+        number names another key there) or an older generation's; 2.0's crossover would then pair
+        unrelated genes and miss homologous ones. Draws nothing from ``random``."""
+        carriers = collections.Counter((key, gene.innovation) for member in self.population.values()
+                                       for key, gene in member.connections.items())
+        numbers: dict[tuple[int, int], int] = {}
+        for key, innovation in sorted(carriers, key=lambda pair: (-carriers[pair], pair[1])):
+            numbers.setdefault(key, innovation)  # the most common first, then the oldest
+        tracker = self.reproduction.innovation_tracker
+        for key, gene in genome.connections.items():
+            gene.innovation = numbers[key] if key in numbers else tracker.get_innovation_number(*key, "add_connection")
 
     # ---------------------------------------------------------------------------- state
 
