@@ -120,13 +120,24 @@ def rollout(policy: BatchedPolicy, env: ForagingEnv, observations: torch.Tensor,
     batch is population-major: controller p drives environments p*E to (p+1)*E - 1, so the policy
     sees ``(population, E, agents, obs_dim)`` observations. ``observer(env, rewards)`` is called
     after every step (the recordings trace episodes with it). Returns the rewards summed per
-    environment, ``(population * E,)``."""
+    environment, ``(population * E,)``.
+
+    An episode that has ended stays as it ended, but the policy is still called on its (frozen)
+    observations until every episode has ended. A policy with an ``ongoing(mask)`` method is told,
+    before every call, which environments' episodes are still going: ``mask`` ``(population * E,)``
+    bool, all true at the first step (the episodes of a reset), then the negation of the last
+    step's done flags."""
     config = env.config
     shape = (policy.population_size, -1, config.n_agents, config.obs_dim)
     totals = torch.zeros(observations.shape[0], dtype=observations.dtype, device=observations.device)
+    ongoing = getattr(policy, "ongoing", None)
+    if ongoing is not None:
+        ongoing(torch.ones(observations.shape[0], dtype=torch.bool, device=observations.device))
     for step in range(config.duration if steps is None else steps):
         outputs = policy(observations.view(shape))
         observations, rewards, done, _ = env.step(outputs_to_wheels(outputs, config).view(-1, config.n_agents, 3))
+        if ongoing is not None:
+            ongoing(~done)  # a new tensor: an in-place step overwrites its done buffer at the next step
         totals += rewards
         if observer is not None:
             observer(env, rewards)
@@ -227,22 +238,30 @@ def _play_together(evaluations: Sequence[Evaluation]) -> list[torch.Tensor]:
 class BesideReference:
     """``policy``, played as it is, with ``reference`` (a one-controller policy) run beside it on
     the very observations each controller sees, step by step in the same rollout: ``penalty`` is
-    then, per controller, the mean over its episodes, steps and agents of the summed absolute
-    difference between its 3 outputs and the reference's (the functional regulariser's penalty).
+    then, per controller, the mean over its live agent-steps (every agent of every step its
+    episodes were still going, in every episode it played) of the summed absolute difference
+    between its 3 outputs and the reference's (the functional regulariser's penalty).
+
+    Only live steps count: ``rollout`` keeps calling the policy on the frozen last observation of
+    an episode that has ended until every episode of the batch has, and tells it which are still
+    going (``ongoing``). Each controller's sum is divided by its own count of live agent-steps,
+    which depends only on its own episodes, not on when the rollout stops (which differs between
+    shards and between a run played alone or with others).
 
     The differences are computed in the policies' own arithmetic, rounded to multiples of
-    ``GRID`` and summed as integers, so the penalty is the same bits in any shard of the
-    population (evaluation threads), alone or played with other runs. ``shard`` exists where
-    ``policy`` has one; each shard keeps its own sums, which ``penalty`` joins in order."""
+    ``GRID`` and summed as integers (exact, so in no particular order), so the penalty is the same
+    bits in any shard of the population (evaluation threads), alone or played with other runs.
+    ``shard`` exists where ``policy`` has one; each shard keeps its own sums, which ``penalty``
+    joins in order."""
 
     GRID = 2.0 ** -24
 
     def __init__(self, policy: BatchedPolicy, reference: BatchedPolicy):
         self.policy, self.reference = policy, reference
         self.population_size = policy.population_size
-        self.steps = 0
         self._sums: torch.Tensor | None = None  # (population, episodes) int64, in GRID units
-        self._agents = 0
+        self._agent_steps: torch.Tensor | None = None  # (population, episodes) int64: live agent-steps
+        self._ongoing: torch.Tensor | None = None  # (population * episodes,) bool, from rollout
         self._shards: list[BesideReference] = []
         if callable(getattr(policy, "shard", None)):
             self.shard = self._shard
@@ -252,26 +271,36 @@ class BesideReference:
         self._shards.append(part)
         return part
 
+    def ongoing(self, mask: torch.Tensor) -> None:
+        """``rollout``'s mask of the environments whose episode is still going at the next call."""
+        self._ongoing = mask
+
     def __call__(self, observations: torch.Tensor) -> torch.Tensor:
+        if self._ongoing is None:
+            raise RuntimeError("BesideReference is played by rollout, which says which episodes are going")
         outputs = self.policy(observations)
         population, episodes, agents, width = observations.shape
         theirs = self.reference(observations.reshape(1, population * episodes, agents, width))
         difference = (outputs - theirs.view(outputs.shape)).abs()
-        counts = torch.round(difference.double() / self.GRID).long().sum(dim=(2, 3))
-        self._sums = counts if self._sums is None else self._sums + counts
-        self.steps += 1
-        self._agents = agents
+        live = self._ongoing.view(population, episodes)
+        counts = torch.round(difference.double() / self.GRID).long().sum(dim=(2, 3)) * live
+        agent_steps = live.long() * agents
+        if self._sums is None:
+            self._sums, self._agent_steps = counts, agent_steps
+        else:
+            self._sums, self._agent_steps = self._sums + counts, self._agent_steps + agent_steps
         return outputs
 
     def penalty(self, episodes: int) -> torch.Tensor:
-        """``(population,)`` float64: each controller's mean, over its first ``episodes`` episodes
-        (a generation's training episodes come first), every step and every agent, of
-        ``sum_k |output_k - reference output_k|``."""
+        """``(population,)`` float64: each controller's mean, over the live agent-steps of its first
+        ``episodes`` episodes (a generation's training episodes come first), of
+        ``sum_k |output_k - reference output_k|``: its own summed differences over its own count."""
         parts = self._shards or [self]
         if any(part._sums is None for part in parts):
             raise RuntimeError("penalty() before the population was played")
         sums = torch.cat([part._sums[:, :episodes] for part in parts]).sum(dim=1)
-        return sums.double() * self.GRID / (episodes * parts[0].steps * parts[0]._agents)
+        agent_steps = torch.cat([part._agent_steps[:, :episodes] for part in parts]).sum(dim=1)
+        return sums.double() * self.GRID / agent_steps.double()
 
 
 class _Together:
@@ -284,6 +313,18 @@ class _Together:
     def __init__(self, parts: Sequence[tuple[BatchedPolicy, int]]):
         self.parts = parts  # (policy, episodes per controller)
         self.n_envs = sum(policy.population_size * n for policy, n in parts)
+        # rollout tells only a batch with a policy that wants to know which episodes are going
+        if any(callable(getattr(policy, "ongoing", None)) for policy, _ in parts):
+            self.ongoing = self._ongoing
+
+    def _ongoing(self, mask: torch.Tensor) -> None:
+        """``rollout``'s ``ongoing``: each policy that has one gets its own environments' part of ``mask``."""
+        start = 0
+        for policy, n_episodes in self.parts:
+            size = policy.population_size * n_episodes
+            if callable(getattr(policy, "ongoing", None)):
+                policy.ongoing(mask[start:start + size])
+            start += size
 
     def __call__(self, observations: torch.Tensor) -> torch.Tensor:
         flat = observations[0]  # (n_envs, agents, obs_dim)

@@ -5,7 +5,7 @@ tell, record; a checkpoint at intervals and at every task end.
 The functional regulariser (``--regulariser functional``) is the loop's, not the optimiser's: the
 optimiser is built at lambda 0, its latest reference (``Optimizer.reference_export``) plays beside
 the population in the same evaluation (``evaluate.BesideReference``), and the selection fitness is
-the fitness less lambda times that penalty.
+the fitness less lambda times that penalty; at lambda 0 the reference does not play.
 
 The baselines of docs/metrics.md change only what a generation trains on
 (``schedule.training_episodes``: rehearsal, joint, blends), when the regulariser takes its
@@ -337,16 +337,18 @@ def _warn_native_elsewhere(run_dir: RunDir, before: dict[str, Any], here: dict[s
 
 class _FunctionalReference:
     """The functional regulariser's reference as a policy, rebuilt only when the optimiser's
-    reference (``Optimizer.reference_export``) changes."""
+    reference (``Optimizer.reference_export``) changes. At lambda 0 it never plays: the penalty
+    would weigh nothing, and the run is then the family's default-regulariser run at lambda 0,
+    its distance diagnostics included (``compare`` holds them for one configuration)."""
 
     def __init__(self, config: RunConfig):
-        self.on, self.device = config.regulariser == FUNCTIONAL, config.device
+        self.on, self.device = config.regulariser == FUNCTIONAL and config.reg > 0, config.device
         self.exported: dict[str, Any] | None = None
         self.policy = None
 
     def beside(self, policy, optimizer):
         """``policy`` with the reference beside it (``evaluate.BesideReference``), or ``policy``
-        itself where the regulariser is another or there is no reference yet."""
+        itself where the regulariser is another, lambda is 0 or there is no reference yet."""
         exported = optimizer.reference_export() if self.on else None
         if exported is None:
             return policy

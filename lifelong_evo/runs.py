@@ -109,7 +109,9 @@ def configuration_of(config: dict[str, Any]) -> dict[str, Any]:
             values.pop(given, None)
     algo = REGISTRY.get(str(values.get("algo")))
     if not values.get("reg"):
-        values.pop("regulariser")  # no regulariser: the choice of one is no setting
+        # no regulariser: the choice of one is no setting (at lambda 0 the functional one does not
+        # even play, so its runs write what the default's do: loop._FunctionalReference)
+        values.pop("regulariser")
     if algo is not None and not values.get("reg"):
         for key in ("algo_options", "algo_options_resolved"):
             if isinstance(values.get(key), dict):

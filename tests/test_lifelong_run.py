@@ -647,6 +647,50 @@ def test_the_functional_regulariser_selects_on_its_penalty(tmp_path, algo):
         assert float(row["mean"]) - float(row["reg_mean"]) == pytest.approx(3 * penalty, rel=1e-5)
 
 
+def test_the_functional_regulariser_at_lambda_0_is_the_default_run_at_lambda_0(tmp_path):
+    """At lambda 0 the functional penalty weighs nothing, so no reference plays beside the
+    population: the run writes what the family's default-regulariser run at lambda 0 writes, its
+    distance columns included (``compare`` holds the two for one configuration), all but
+    config.json's ``regulariser`` (in the checkpoints too) and the wall time."""
+    from lifelong_evo import checkpoint
+
+    for where, extra in (("default", []), ("functional", ["--regulariser", "functional"])):
+        assert main(["--algo", "neat", "--reg", "0", *extra, "--preset", "smoke", *TINY, "--out", str(tmp_path / where),
+                     "--name", "run", "--no-record", "--quiet"]) == 0
+    default, functional = tmp_path / "default/run", tmp_path / "functional/run"
+    files = sorted(str(path.relative_to(default)) for path in default.rglob("*") if path.is_file())
+    assert files == sorted(str(path.relative_to(functional)) for path in functional.rglob("*") if path.is_file())
+    assert "checkpoints/first-task-end.pt" in files, "the runs must pass a task end, where the reference is taken"
+
+    def without(text: str, *keys: str) -> dict:
+        values = json.loads(text)
+        for key in keys:
+            values.pop(key)
+        return values
+
+    def payload(path: Path) -> bytes:
+        values = checkpoint.load(path)
+        values["config"].pop("regulariser"), values["loop"].pop("wall_time_s")
+        written = io.BytesIO()
+        torch.save(values, written)
+        return written.getvalue()
+
+    for name in files:
+        mine, theirs = default / name, functional / name
+        if name == "config.json":
+            assert json.loads(mine.read_text())["regulariser"] == "gd"
+            assert without(mine.read_text(), "regulariser") == without(theirs.read_text(), "regulariser")
+        elif name == "summary.json":
+            assert without(mine.read_text(), "wall_time_s") == without(theirs.read_text(), "wall_time_s")
+        elif name == ".lifelong-evo-run":  # the run directory's mark: when it was made
+            assert without(mine.read_text(), "created") == without(theirs.read_text(), "created")
+        elif name.endswith(".pt"):
+            assert payload(mine) == payload(theirs), name
+        else:
+            assert mine.read_bytes() == theirs.read_bytes(), name
+    assert any(row["distance_mean"] for row in _rows(functional / "metrics.csv")), "the distance columns must be written"
+
+
 def test_reg_for_an_algorithm_without_regulariser(monkeypatch, tmp_path, capsys):
     from algorithms import REGISTRY, NeatOptimizer
 
