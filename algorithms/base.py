@@ -117,7 +117,23 @@ class Optimizer(ABC):
     """The regularisers ``--regulariser`` may choose for this optimiser, its default first, each with
     the options that make the optimiser apply it. ``functional`` (``FUNCTIONAL``) names none: the
     lifelong loop applies it, to the controllers' outputs beside ``reference_export``'s, with the
-    optimiser built at lambda 0. Empty: the optimiser's own regulariser, unnamed."""
+    optimiser built at lambda 0. Empty: the optimiser's own regulariser, unnamed. A run that names
+    none applies the first whose options its options match, ``functional`` only where no other
+    does (``lifelong_evo.config.resolve_regulariser``)."""
+    options_used_by: ClassVar[dict[str, tuple[str, ...]]] = {}
+    """Options that only some of ``regularisers`` read, each with those that do (NEAT's ``lambda_2``:
+    ``wp``): given under another regulariser, such an option is refused, since it would change
+    nothing but the run's configuration."""
+    after_first_task_options: ClassVar[tuple[str, ...]] = ()
+    """Options that act only from the end of the first task, where the regulariser takes its first
+    reference: every number before that end, and the whole ``state_dict`` at it (after that
+    ``end_task``), are the same whatever they say, so runs that differ only in them share their
+    first task (``--start-from``, ``sweep --share-first-task``). Not an option that shapes what
+    ``end_task`` keeps (an ES's ``reference``: the centre or the best) or that chooses a regulariser
+    which gathers anything during a task (an ES's ``importance=ewc``). Like lambda, which no
+    optimiser may use before its first ``end_task``, and the choice of regulariser itself (its
+    options apart), they are trusted: ``tests/test_first_task_settings.py`` plays a first task with
+    two values of each declared one, for every registered optimiser."""
 
     @classmethod
     def check_population(cls, population_size: int, options: OptimizerOptions) -> None:

@@ -116,6 +116,9 @@ class ESOptimizer(Optimizer):
     regularizer_options: ClassVar[tuple[str, ...]] = ("reference", "importance")
     regularisers: ClassVar[dict[str, dict[str, Any]]] = {"l2": {"importance": "l2"}, "ewc": {"importance": "ewc"},
                                                          FUNCTIONAL: {}}
+    # after_first_task_options: none. The reference (centre or best) is what the first end_task
+    # keeps, and importance=ewc gathers its sensitivities during the task: a run's state at the
+    # first task's end differs with either
     even_population: ClassVar[bool] = False
     """Mirrored sampling needs an even number of samples."""
 

@@ -31,8 +31,8 @@ class RunConfig:
     """Regularisation strength lambda (0 = off) of --regulariser."""
     regulariser: str = DEFAULT_REGULARISER
     """The regulariser: gd or wp (NEAT), l2 or ewc (the ES; --option importance is a synonym), functional
-    (NEAT, the ES, an optimiser with a reference); default: the optimiser's own (NEAT gd, the ES l2)
-    (docs/algorithms.md)."""
+    (NEAT, the ES, an optimiser with a reference); default: the optimiser's own (NEAT gd, the ES l2), or
+    the one the options given choose (docs/algorithms.md)."""
     schedule: str = "red-green-red"
     """red-green-red, four-tasks, nest-relocation, robot-failure, or a list like red:200,green:100,red:50
     of built-in tasks and those --tasks defines; a>b:N blends task a into task b over N generations
@@ -121,12 +121,19 @@ class RunConfig:
     """The continual-learning baselines and the boundary-free reference (docs/metrics.md,
     Baselines): each is off at its default, and a run with all of them off (and lambda 0) is
     fine-tuning."""
-    AFTER_FIRST_TASK_SETTINGS: ClassVar[tuple[str, ...]] = ("reg", "rehearsal", "from_scratch", "archive")
+    AFTER_FIRST_TASK_SETTINGS: ClassVar[tuple[str, ...]] = ("reg", "regulariser", "rehearsal", "from_scratch",
+                                                            "archive")
     """Settings that act only at or after the first task's end (the regulariser takes its first
-    reference there; rehearsal has no earlier task before it; from scratch starts afresh there;
-    the archive puts a controller back only when a task returns):
-    runs that differ only in them share their first task, number for number (``--start-from``,
-    ``sweep --share-first-task``; the run that takes it over does at its end what it does)."""
+    reference there, whichever it is and whatever lambda is: what tells one regulariser from another
+    before that end is in the options that choose it, compared by themselves; rehearsal has no
+    earlier task before it; from scratch starts afresh there; the archive puts a controller back
+    only when a task returns): runs that differ only in them, and in the optimiser's
+    ``after_first_task_options``, share their first task, number for number (``--start-from``,
+    ``sweep --share-first-task``; the run that takes it over does at its end what it does).
+    ``after_first_task`` gives them for a run."""
+    REGULARISER_SETTINGS: ClassVar[tuple[str, ...]] = ("reg", "regulariser")
+    """The regulariser's own settings: with a reference taken before the first task's end
+    (``reference_every``), they act in the first task."""
 
     @classmethod
     def outcome_settings(cls, values: dict[str, Any]) -> dict[str, Any]:
@@ -156,9 +163,27 @@ class RunConfig:
     @classmethod
     def first_task_settings(cls, values: dict[str, Any]) -> dict[str, Any]:
         """``outcome_settings`` but those that act only after the first task's end
-        (``AFTER_FIRST_TASK_SETTINGS``): runs with equal ones play the same first task."""
+        (``after_first_task``): runs with equal ones play the same first task."""
         settings = cls.outcome_settings(values)
-        return {k: v for k, v in settings.items() if k not in cls.AFTER_FIRST_TASK_SETTINGS}
+        after = cls.from_dict(values).after_first_task()
+        first = {k: v for k, v in settings.items() if k not in after}
+        if isinstance(first.get("algo_options"), dict):
+            first["algo_options"] = {k: v for k, v in first["algo_options"].items() if f"algo_options.{k}" not in after}
+        return first
+
+    def after_first_task(self) -> frozenset[str]:
+        """The settings of this run that act only from its first task's end, named as
+        ``RunDir.setting_differences`` names them: ``AFTER_FIRST_TASK_SETTINGS`` and
+        ``algo_options.KEY`` for each of the optimiser's ``after_first_task_options``; but none of
+        the regulariser's where it takes a reference before that end (``reference_every`` shorter
+        than the first task)."""
+        from algorithms import REGISTRY
+
+        options = getattr(REGISTRY.get(self.algo), "after_first_task_options", ())
+        after = {*self.AFTER_FIRST_TASK_SETTINGS, *(f"algo_options.{name}" for name in options)}
+        if self.reference_every and self.reference_every < self.phases()[0].generations:
+            after -= {*self.REGULARISER_SETTINGS, *(f"algo_options.{name}" for name in options)}
+        return frozenset(after)
 
     @classmethod
     def configuration_settings(cls, values: dict[str, Any]) -> dict[str, Any]:
@@ -173,7 +198,7 @@ class RunConfig:
         from algorithms import REGISTRY
 
         schedule = re.sub(r"[^A-Za-z0-9]+", "-", self.schedule).strip("-")
-        own = next(iter(getattr(REGISTRY.get(self.algo), "regularisers", None) or [DEFAULT_REGULARISER]))
+        own = resolve_regulariser(self.algo, DEFAULT_REGULARISER, {})[0] if self.algo in REGISTRY else None
         regulariser = "" if self.regulariser in (own, DEFAULT_REGULARISER) else f"-{self.regulariser}"
         return f"{self.algo}-{schedule}{regulariser}-reg{self.reg:g}-seed{self.seed}"
 
@@ -292,26 +317,39 @@ class RunConfig:
 def resolve_regulariser(algo: str, regulariser: str, algo_options: dict[str, Any]) -> tuple[str, dict[str, Any]]:
     """The regulariser a run of ``algo`` applies, and its options with those that choose it
     (``Optimizer.regularisers``): ``default`` is the first of the optimiser's regularisers that its
-    options choose (``--option importance=ewc``: ``ewc``), or stays ``default`` for an optimiser
-    that names none; a named one adds the options that choose it where they are not their
-    defaults, so that ``--regulariser ewc`` and ``--option importance=ewc`` are one configuration.
-    ConfigError where the optimiser cannot apply it, or an option given says otherwise."""
+    options choose (``--option importance=ewc``: ``ewc``), the functional one only where no other
+    is, or stays ``default`` for an optimiser that names none; a named one adds the options that
+    choose it where they are not their defaults, so that ``--regulariser ewc`` and ``--option
+    importance=ewc`` are one configuration. ConfigError where the optimiser cannot apply it, an
+    option given chooses another regulariser (``--regulariser functional --option penalty=wp``), or
+    only another reads it (``Optimizer.options_used_by``: ``--regulariser gd --option lambda_2=0.5``)."""
     from algorithms import REGISTRY
+    from algorithms.base import FUNCTIONAL
 
     optimizer = REGISTRY[algo]
     names = optimizer.regularisers
     if regulariser == DEFAULT_REGULARISER:
         resolved = asdict(optimizer.Options(**algo_options))
         chosen = [name for name, options in names.items() if all(resolved[k] == v for k, v in options.items())]
-        return (chosen[0] if chosen else regulariser), algo_options
-    if regulariser not in names:
+        chosen = [name for name in chosen if name != FUNCTIONAL] or chosen
+        if not chosen:
+            return regulariser, algo_options
+        regulariser = chosen[0]
+    elif regulariser not in names:
         applies = f"applies {', '.join(names)}" if names else "names no regulariser: drop --regulariser"
         raise ConfigError(f"--regulariser {regulariser!r}: {algo} {applies}")
-    clash = [f"--option {k}={algo_options[k]}" for k, v in names[regulariser].items()
-             if k in algo_options and algo_options[k] != v]
-    if clash:
-        raise ConfigError(f"--regulariser {regulariser!r} and {' and '.join(clash)} choose different regularisers: "
-                          "give one of them")
+    else:
+        choosing = {key for options in names.values() for key in options}
+        clash = [f"--option {k}={v}" for k, v in algo_options.items()
+                 if k in choosing and names[regulariser].get(k) != v]
+        if clash:
+            raise ConfigError(f"--regulariser {regulariser!r} and {' and '.join(clash)} choose different "
+                              "regularisers: give one of them")
+    for key, value in algo_options.items():
+        users = optimizer.options_used_by.get(key, (regulariser,))
+        if regulariser not in users:
+            raise ConfigError(f"--option {key}={value} is read only by --regulariser {' or '.join(users)}, and this "
+                              f"run's is {regulariser!r}: drop the option, or give --regulariser {users[0]}")
     defaults = asdict(optimizer.Options())
     return regulariser, {**algo_options, **{k: v for k, v in names[regulariser].items() if defaults[k] != v}}
 

@@ -450,8 +450,10 @@ def check_start_from(config: RunConfig, run_dir: RunDir, source: RunDir) -> None
     """ResumeError, before anything is written, unless a run of ``config`` into ``run_dir`` may
     take over ``source``'s first task: ``source`` is another run directory than ``run_dir``, by any
     path, and not inside it (``--overwrite`` would empty it before it is read), keeps its first
-    task's end, and the two differ in nothing that changes a number but lambda, which no optimiser
-    uses before its first reference (taken at that task end, whatever lambda is)."""
+    task's end, and the two differ in nothing that changes a number before that end
+    (``RunDir.first_task_differences``): lambda, which no optimiser uses before its first
+    reference (taken at that task end, whatever lambda is), the regulariser and the options that act
+    only from there, and the baselines that start there."""
     if source.is_same_directory(run_dir):
         raise ResumeError(f"--start-from {source.path} is the run directory this run writes ({run_dir.path}): "
                           "a run cannot take over its own first task (--overwrite would delete it before it is "
@@ -462,10 +464,9 @@ def check_start_from(config: RunConfig, run_dir: RunDir, source: RunDir) -> None
                           "another --name, or --out")
     different = source.first_task_differences(config.to_dict())
     if different:
-        raise ResumeError(f"--start-from {source.path}: that run differs from this one in more than lambda, "
-                          "rehearsal and from scratch "
-                          f"({'; '.join(different)}), so its first task is not this run's: start this run "
-                          "without --start-from")
+        raise ResumeError(f"--start-from {source.path}: that run differs from this one in settings that act "
+                          f"before its first task's end ({'; '.join(different)}), so its first task is not this "
+                          "run's: start this run without --start-from")
     path = source.first_task_end
     if not path.is_file():
         raise ResumeError(f"--start-from {source.path}: it keeps no checkpoint of its first task's end ({path} "

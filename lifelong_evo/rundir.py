@@ -30,12 +30,13 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from algorithms import REGISTRY
+
 from . import checkpoint
 from .config import DEFAULT_REGULARISER, RunConfig
 from .errors import RunDirError
 from .json_files import read_json, write_json
 from .metrics_csv import METRICS_FILE, SPECIES_FILE
-from .options import flag
 from .provenance import library_versions, package_version
 from .run_files import check_config, check_controller, check_summary
 from .run_lock import LOCK, RunDirInUseError, RunLock, held_by
@@ -63,6 +64,18 @@ class ResumeError(RunDirError):
 def _as_stored(value: Any) -> Any:
     """``value`` as config.json holds it (tuples are lists; 11 and 11.0 compare equal)."""
     return json.loads(json.dumps(value))
+
+
+def _regulariser_option(algo: str, key: str, regulariser: str | None = None, chosen_only: bool = False) -> bool:
+    """Whether option ``key`` of ``algo`` chooses a regulariser (``Optimizer.regularisers``) or, unless
+    ``chosen_only``, only some regularisers read it (``Optimizer.options_used_by``); with
+    ``regulariser``: only those that ``regulariser`` does not read, so that a run stated with
+    ``regulariser`` has it from there."""
+    optimizer = REGISTRY[algo]
+    if any(key in options for options in optimizer.regularisers.values()):
+        return True
+    users = optimizer.options_used_by.get(key)
+    return not chosen_only and users is not None and (regulariser is None or regulariser not in users)
 
 
 def run_directory_around(path: Path) -> Path | None:
@@ -217,7 +230,7 @@ class RunDir:
         """Each setting that would change this run's numbers in which ``stated`` differs from the
         settings the run was created with, as ``--flag value (stored: value)``: the one rule by which
         a run is continued (``continuation``) or another run takes over its first task
-        (``loop.lifelong``'s ``start_from``).
+        (``first_task_differences``).
 
         ``stated``: settings as a command gives them (some of ``RunConfig``'s fields, their values
         typed or as text; ``env`` and ``algo_options`` key by key) or a whole configuration
@@ -226,12 +239,22 @@ class RunDir:
         compared, the environment and the optimiser's options resolved as config.json says the run
         resolved them, so a default stated in one and left out in the other is one setting. Where
         the optimiser differs, its options and regulariser are not compared: they are another
-        optimiser's, which nobody stated, and ``--algo`` alone is the difference."""
+        optimiser's, which nobody stated, and ``--algo`` alone is the difference. Where a
+        regulariser is stated, the stored options that chose the stored one, or that only it reads,
+        are not laid under it, and a difference in them that nobody stated is the regulariser's."""
+        return list(dict.fromkeys(text for _, text in self._differences(stated)))
+
+    def _differences(self, stated: dict[str, Any]) -> list[tuple[str, str]]:
+        """``setting_differences`` as ``(setting, text)``: the setting a field's name, or
+        ``env.KEY``, ``algo_options.KEY`` or ``task.NAME``."""
         stored = self.read_config()
         written = read_json(self.config)
         algo = stated.get("algo", stored.algo)
         same_algo = algo == stored.algo
         keep_options = stored.algo_options if same_algo else {}  # another optimiser's options mean nothing
+        regulariser = stated.get("regulariser", DEFAULT_REGULARISER)
+        if same_algo and regulariser != DEFAULT_REGULARISER:  # the stated one's options, not the stored one's
+            keep_options = {k: v for k, v in keep_options.items() if not _regulariser_option(algo, k, regulariser)}
         base = stored if same_algo else replace(stored, regulariser=DEFAULT_REGULARISER)  # nor its regulariser
         given = replace(base, **{k: v for k, v in stated.items() if k not in ("env", "algo_options")},
                         env={**stored.env, **stated.get("env", {})},
@@ -248,25 +271,32 @@ class RunDir:
                 theirs = {**(stored.env_config().to_dict() if name == "env" else stored.algo_options_resolved()),
                           **(written.get(f"{name}_resolved") or {})}
                 mine, theirs = _as_stored(mine), _as_stored(theirs)
-                differences += [f"{flag} {key}={mine.get(key)!r} (stored: {theirs[key]!r})"
+                differences += [(f"{name}.{key}", f"{flag} {key}={mine.get(key)!r} (stored: {theirs[key]!r})")
                                 for key in sorted(theirs) if mine.get(key) != theirs[key]]
             elif _as_stored(value) != _as_stored(getattr(stored, name)):
-                differences.append(f"--{name.replace('_', '-')} {value!r} (stored: {getattr(stored, name)!r})")
+                differences.append((name, f"--{name.replace('_', '-')} {value!r} (stored: {getattr(stored, name)!r})"))
+        # an option that differs with the regulariser is told as the regulariser's difference: one that
+        # chooses it (it cannot differ by itself), or one that only some regularisers read and nobody stated
+        told = dict(differences).get("regulariser")
+        if told is not None:
+            differences = [(setting, told if setting.startswith("algo_options.") and _regulariser_option(
+                algo, key := setting[len("algo_options."):], chosen_only=key in stated.get("algo_options", {}))
+                else text) for setting, text in differences]
         # a task's definition can change without a setting changing (a built-in task of another
         # version); a run written before config.json recorded them ran the paper's tasks
         theirs = written.get("task_definitions")
         if theirs is not None:
             mine = _as_stored(given.task_definitions())
-            differences += [f"task {name}: {mine.get(name)!r} (stored: {theirs.get(name)!r})"
+            differences += [(f"task.{name}", f"task {name}: {mine.get(name)!r} (stored: {theirs.get(name)!r})")
                             for name in sorted(set(mine) | set(theirs)) if mine.get(name) != theirs.get(name)]
         return differences
 
     def first_task_differences(self, stated: dict[str, Any]) -> list[str]:
         """``setting_differences`` that would make a run of ``stated`` differ from this one before
-        the first task's end: all but ``RunConfig.AFTER_FIRST_TASK_SETTINGS``. None: the two share
-        their first task (``--start-from``)."""
-        after = tuple(f"{flag(name)} " for name in RunConfig.AFTER_FIRST_TASK_SETTINGS)
-        return [difference for difference in self.setting_differences(stated) if not difference.startswith(after)]
+        the first task's end: all but those that act only after it (``RunConfig.after_first_task``).
+        None: the two share their first task (``--start-from``)."""
+        after = self.read_config().after_first_task()
+        return list(dict.fromkeys(text for setting, text in self._differences(stated) if setting not in after))
 
     def continuation(self, stated: dict[str, Any]) -> RunConfig:
         """The configuration to continue this run with: the one it was created with, and the output
@@ -348,7 +378,7 @@ class RunDir:
     @property
     def first_task_end(self) -> Path:
         """A copy of the checkpoint at the first task's end, kept for runs that share the first
-        task (``--start-from``): they differ only in ``RunConfig.AFTER_FIRST_TASK_SETTINGS``."""
+        task (``--start-from``): they differ only in settings that act after it (``RunConfig.after_first_task``)."""
         return self.checkpoints / "first-task-end.pt"
 
     def save_first_task_end(self, payload: dict[str, Any]) -> None:

@@ -124,6 +124,18 @@ CUDA = torch.cuda.is_available()
     (["--regulariser", "l2"], "--regulariser 'l2': neat applies gd, wp, functional"),
     (["--algo", "snes", "--regulariser", "ewc", "--option", "importance=l2"],
      "--regulariser 'ewc' and --option importance=l2 choose different regularisers: give one of them"),
+    # the functional regulariser too: such an option made two configurations of one run (ewc: its bookkeeping for
+    # nothing)
+    (["--regulariser", "functional", "--option", "penalty=wp"],
+     "--regulariser 'functional' and --option penalty=wp choose different regularisers: give one of them"),
+    (["--algo", "openai-es", "--regulariser", "functional", "--option", "importance=ewc"],
+     "--regulariser 'functional' and --option importance=ewc choose different regularisers: give one of them"),
+    # an option that only another regulariser reads (Optimizer.options_used_by)
+    (["--option", "lambda_2=0.5"], "--option lambda_2=0.5 is read only by --regulariser wp, and this run's is 'gd': "
+                                   "drop the option, or give --regulariser wp"),
+    (["--regulariser", "functional", "--option", "references=2"],
+     "--option references=2 is read only by --regulariser gd or wp, and this run's is 'functional': drop the option, "
+     "or give --regulariser gd"),
     (["--config", "."], "cannot be read"),
     # the overflows: each gave a traceback after config.json and metrics.csv were written
     (["--seed", str(10**23)], "argument --seed: '100000000000000000000000' is not an integer from 0 to 4294967295"),

@@ -277,4 +277,85 @@ def test_an_option_added_since_a_run_was_written_is_its_default(tmp_path):
         del written["algo_options_resolved"][name]
     run.config.write_text(json.dumps(written))
     assert run.setting_differences(config.to_dict()) == []
-    assert run.setting_differences({"algo_options": {"lambda_2": 0.5}}) == ["--option lambda_2=0.5 (stored: 0.3)"]
+    assert run.setting_differences({"regulariser": "wp", "algo_options": {"lambda_2": 0.5}}) == [
+        "--regulariser 'wp' (stored: 'gd')", "--option lambda_2=0.5 (stored: 0.3)"]
+
+
+@pytest.mark.parametrize("stored, stated, says", [
+    # the stored wp's options were kept under the stated gd: the refusal named --option penalty=wp, never given
+    (dict(regulariser="wp", algo_options={"lambda_2": 0.003}), {"regulariser": "gd"},
+     ["--regulariser 'gd' (stored: 'wp')"]),
+    (dict(regulariser="wp"), {"regulariser": "functional"}, ["--regulariser 'functional' (stored: 'wp')"]),
+    (dict(algo="sep-cmaes", regulariser="ewc"), {"regulariser": "functional"},
+     ["--regulariser 'functional' (stored: 'ewc')"]),
+    (dict(algo_options={"references": 2}), {"regulariser": "functional"},
+     ["--regulariser 'functional' (stored: 'gd')"]),
+    # the stored regulariser stated, or default (the one the stored options choose): no difference
+    (dict(regulariser="wp", algo_options={"lambda_2": 0.003}), {"regulariser": "wp"}, []),
+    (dict(regulariser="wp", algo_options={"lambda_2": 0.003}), {"regulariser": "default"}, []),
+    # an option stated beside it is named as stated
+    (dict(regulariser="wp", algo_options={"lambda_2": 0.003}), {"regulariser": "wp", "algo_options": {"lambda_2": 1}},
+     ["--option lambda_2=1.0 (stored: 0.003)"]),
+])
+def test_a_regulariser_stated_on_resume_is_named_as_its_difference(tmp_path, stored, stated, says):
+    """``--resume --regulariser gd`` on a run stored with wp is one difference, the regulariser's, not
+    an option nobody gave (the stored options that chose, or that only the stored regulariser
+    reads, are the stored regulariser's)."""
+    run = RunDir(tmp_path / "run")
+    run.path.mkdir()
+    run.write_config(RunConfig(**{"algo": "neat", "reg": 0.4, "generations": 3, **stored}).validate(machine=False))
+    assert run.setting_differences(stated) == says
+
+
+def test_resume_with_another_regulariser_names_it(tmp_path, capsys):
+    from lifelong_evo.commands.cli import main
+
+    argv = ["--algo", "neat", "--reg", "0.4", "--preset", "smoke", "--schedule", "red:1", "--env", "duration=20",
+            "--held-out-episodes", "1", "--no-record", "--quiet", "--out", str(tmp_path), "--name", "wp"]
+    assert main([*argv, "--regulariser", "wp", "--option", "lambda_2=0.003"]) == 0
+    capsys.readouterr()
+    before = {path: path.read_bytes() for path in (tmp_path / "wp").rglob("*") if path.is_file()}
+    assert main([*argv, "--resume", "--regulariser", "gd"]) == 2
+    assert capsys.readouterr().err == (
+        f"error: {tmp_path / 'wp'} was run with other settings than these: --regulariser 'gd' (stored: 'wp'): "
+        "continue it with its stored settings (drop those flags or give the stored values), or start a new run "
+        "(another --name, or --overwrite to replace it)\n")
+    assert {path: path.read_bytes() for path in (tmp_path / "wp").rglob("*") if path.is_file()} == before
+
+
+@pytest.mark.parametrize("algo, options, own", [("neat", {}, "gd"), ("neat", {"penalty": "wp"}, "wp"),
+                                                ("sep-cmaes", {}, "l2"), ("sep-cmaes", {"importance": "ewc"}, "ewc")])
+def test_regulariser_default_is_the_one_a_run_without_it_applies(algo, options, own):
+    """``--regulariser default`` (config.json's value before the setting existed) is documented: the
+    family's own, or the one the options given choose, as without the flag; it is how a grid over
+    families says "each its own" beside another (``--algo neat,sep-cmaes --regulariser default,functional``)."""
+    from lifelong_evo.config import configure
+
+    stated = configure({"algo": algo, "reg": 1.0, "regulariser": "default", "algo_options": options}, machine=False)
+    assert stated == configure({"algo": algo, "reg": 1.0, "algo_options": options}, machine=False)
+    assert stated.regulariser == own
+
+
+def test_the_functional_regulariser_is_the_default_only_of_an_optimiser_with_no_other(monkeypatch):
+    """A custom optimiser listing ``functional`` first beside its own regulariser got functional by
+    default (the first entry won), built at lambda 0: its own regulariser silently off."""
+    from algorithms import REGISTRY
+    from algorithms.base import FUNCTIONAL
+    from lifelong_evo.config import DEFAULT_REGULARISER, resolve_regulariser
+
+    neat = REGISTRY["neat"]
+    monkeypatch.setitem(REGISTRY, "functional-first", type("FunctionalFirst", (neat,), {
+        "name": "functional-first",
+        "regularisers": {FUNCTIONAL: {}, "mine": {"penalty": "gd"}, "wp": {"penalty": "wp"}},
+        "options_used_by": {}}))
+    monkeypatch.setitem(REGISTRY, "functional-only", type("FunctionalOnly", (neat,), {
+        "name": "functional-only", "regularisers": {FUNCTIONAL: {}}, "options_used_by": {}}))
+    assert resolve_regulariser("functional-first", DEFAULT_REGULARISER, {})[0] == "mine"
+    assert resolve_regulariser("functional-first", DEFAULT_REGULARISER, {"penalty": "wp"})[0] == "wp"
+    assert resolve_regulariser("functional-only", DEFAULT_REGULARISER, {})[0] == FUNCTIONAL
+    names = [RunConfig(algo=algo, reg=1.0, regulariser=regulariser).validate(machine=False).default_name()
+             for algo, regulariser in (("functional-first", "mine"), ("functional-first", "functional"),
+                                       ("functional-only", "functional"))]
+    assert names == ["functional-first-red-green-red-reg1-seed42",
+                     "functional-first-red-green-red-functional-reg1-seed42",
+                     "functional-only-red-green-red-reg1-seed42"]

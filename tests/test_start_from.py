@@ -49,6 +49,23 @@ def test_a_run_started_from_another_lambda_gives_its_own_numbers(tmp_path, algo)
     assert metrics[0][:4] == metrics[1][:4] and metrics[0][4:] != metrics[1][4:]
 
 
+@pytest.mark.parametrize("algo, regulariser", [("sep-cmaes", ["--regulariser", "functional"]),
+                                               ("neat", ["--regulariser", "wp", "--option", "lambda_2=1"])])
+def test_a_run_started_from_another_regulariser_gives_its_own_numbers(tmp_path, algo, regulariser):
+    """The regulariser and the options that act only from the first task's end
+    (``Optimizer.after_first_task_options``) take their reference there like lambda: a run of another
+    takes over a fine-tuning run's first task (it was refused) and gives the numbers it gets alone."""
+    def run(*argv):
+        assert main(["--algo", algo, *COMMON, "--out", str(tmp_path), *argv]) == 0
+
+    run("--name", "source")
+    run(*regulariser, "--reg", "3", "--name", "alone")
+    run(*regulariser, "--reg", "3", "--name", "started", "--start-from", str(tmp_path / "source"))
+    alone, started = _files(tmp_path / "alone"), _files(tmp_path / "started")
+    assert json.loads(alone.pop("config.json")) == json.loads(started.pop("config.json"))
+    assert alone == started
+
+
 @pytest.mark.parametrize("algo", ["neat", "sep-cmaes"])
 @pytest.mark.parametrize("source, baseline", [([], ["--rehearsal", "0.5", "--reg", "2"]), ([], ["--from-scratch"]),
                                               (["--from-scratch"], ["--reg", "2"]), ([], ["--archive"]),
@@ -96,8 +113,8 @@ def test_start_from_a_run_of_another_algo_names_only_the_algo(tmp_path, capsys):
     assert main(["--algo", "openai-es", "--reg", "2", *COMMON, "--out", str(tmp_path), "--name", "new",
                  "--start-from", str(tmp_path / "source")]) == 2
     captured = capsys.readouterr()
-    assert captured.err == (f"error: --start-from {tmp_path / 'source'}: that run differs from this one in more than "
-                            "lambda, rehearsal and from scratch (--algo 'openai-es' (stored: 'neat')), so its first "
+    assert captured.err == (f"error: --start-from {tmp_path / 'source'}: that run differs from this one in settings "
+                            "that act before its first task's end (--algo 'openai-es' (stored: 'neat')), so its first "
                             "task is not this run's: start this run without --start-from\n")
     assert captured.out == "" and snapshot(tmp_path) == before
 

@@ -170,6 +170,17 @@ def test_grid_from_flags_and_file(tmp_path, capsys):
     assert main(["sweep", "--seed", "1,1", "--dry-run"]) == 2
 
 
+def test_regulariser_default_gives_each_family_of_a_grid_its_own(tmp_path, capsys):
+    """``--regulariser default`` (documented, not refused): in a grid over families it says "each its
+    own" beside another regulariser, which no family's own name can (another family refuses it)."""
+    argv = ["sweep", "--algo", "neat,sep-cmaes", "--reg", "1", "--preset", "smoke", "--out", str(tmp_path), "--dry-run"]
+    assert main([*argv, "--regulariser", "default,functional"]) == 0
+    assert [line.split()[-1] for line in capsys.readouterr().out.splitlines() if line.startswith("would run")] == \
+        ["neat-gd", "neat-functional", "sep-cmaes-l2", "sep-cmaes-functional"]
+    assert main([*argv, "--regulariser", "gd,functional"]) == 2
+    assert "--regulariser 'gd': sep-cmaes applies l2, ewc, functional" in capsys.readouterr().err
+
+
 def test_grid_values_are_typed_as_a_run_types_them(tmp_path, capsys):
     argv = ["sweep", "--algo", "openai-es", "--preset", "smoke", "--out", str(tmp_path), "--name", "t", "--dry-run"]
     assert main([*argv, "--option", "hidden=[8],[8,8]", "--env", "see_other_agents=no,YES"]) == 0
@@ -475,6 +486,28 @@ def test_an_overwriting_sweep_never_starts_a_trial_from_a_first_task_it_deletes(
     assert (tmp_path / "shared/reg0/checkpoints/first-task-end.pt").stat().st_ino != old_first_task.stat().st_ino
     for name, metrics in first.items():
         assert (tmp_path / "shared" / name / "metrics.csv").read_bytes() == metrics, name
+
+
+def test_share_first_task_takes_a_first_task_over_from_another_regulariser(tmp_path, monkeypatch, capsys):
+    """A grid over NEAT's regularisers at one lambda: nothing they add acts before the first task's
+    end, so the wp trial takes over the gd trial's first task (it played it again) and has the numbers
+    it has alone. (Ray played in this process, one trial after the other.)"""
+    from lifelong_evo.commands import ray_cluster
+
+    def in_turn(jobs, function, *, on_result, **settings):
+        for index in range(len(jobs)):
+            on_result(index, function(*jobs[index].args), "")
+
+    monkeypatch.setattr(ray_cluster, "run_jobs", in_turn)
+    grid = ["sweep", "--algo", "neat", "--regulariser", "gd,wp", "--reg", "2", "--schedule", "red:2,green:2", *SMOKE,
+            "--held-out-episodes", "1", "--out", str(tmp_path)]
+    assert main([*grid, "--name", "shared", "--share-first-task"]) == 0
+    trials = _trials(tmp_path / "shared")
+    assert [trials[name]["first_task_from"] for name in ("gd", "wp")] == ["", str((tmp_path / "shared/gd").resolve())]
+    assert main(["--algo", "neat", "--regulariser", "wp", "--reg", "2", "--schedule", "red:2,green:2", *SMOKE,
+                 "--held-out-episodes", "1", "--out", str(tmp_path), "--name", "alone", "--quiet"]) == 0
+    for file in ("metrics.csv", "species.csv", "controllers/task1-green-top.json"):
+        assert (tmp_path / "shared/wp" / file).read_bytes() == (tmp_path / "alone" / file).read_bytes()
 
 
 def test_first_task_from_needs_share_first_task(tmp_path, capsys):

@@ -116,6 +116,11 @@ class NeatOptimizer(Optimizer):
     diagnostics = ("distance_mean", "distance_std", "disabled_fraction")
     regularizer_options = ("references", "penalty", "lambda_2")
     regularisers = {"gd": {"penalty": "gd"}, "wp": {"penalty": "wp"}, FUNCTIONAL: {}}
+    # the functional regulariser reads only the latest reference (reference_export)
+    options_used_by = {"lambda_2": ("wp",), "references": ("gd", "wp")}
+    # the penalty needs a reference: none of them acts before the first end_task, which appends the
+    # task's best genome to reference_genomes whatever they say, and state_dict holds none of them
+    after_first_task_options = ("references", "penalty", "lambda_2")
 
     @classmethod
     def check_population(cls, population_size: int, options: NeatOptions | None = None) -> None:

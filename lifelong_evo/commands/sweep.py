@@ -175,15 +175,17 @@ def first_task_source(config: RunConfig, candidates: Sequence[str],
 
 
 def first_task_order(trials: list[Trial]) -> list[Trial]:
-    """``trials`` with the ones that share a first task together, fine-tuning (none of
-    ``RunConfig.AFTER_FIRST_TASK_SETTINGS``) first, in order of first appearance: each other trial then runs right after the
-    run it starts from."""
+    """``trials`` with the ones that share a first task together (``RunConfig.first_task_settings``),
+    fine-tuning (lambda 0 and none of the baselines among ``RunConfig.AFTER_FIRST_TASK_SETTINGS``:
+    the regulariser is no baseline) first, in order of first appearance: each other trial then runs
+    right after the run it starts from."""
     groups: dict[str, list[Trial]] = {}
     for trial in trials:
         settings = RunConfig.first_task_settings(trial.config.to_dict())
         groups.setdefault(json.dumps(settings, sort_keys=True), []).append(trial)
+    on = [name for name in RunConfig.AFTER_FIRST_TASK_SETTINGS if name != "regulariser"]
     return [trial for group in groups.values() for trial in sorted(
-        group, key=lambda t: any(getattr(t.config, name) for name in RunConfig.AFTER_FIRST_TASK_SETTINGS))]
+        group, key=lambda t: any(getattr(t.config, name) for name in on))]
 
 
 def run_trial(config_values: dict[str, Any], path: str, overwrite: bool, memory_check: bool = True,
