@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .base import BatchedPolicy, ExportError, GenerationReport, Optimizer, OptimizerOptions
+from .base import BatchedPolicy, ControllerNetwork, ExportError, GenerationReport, Optimizer, OptimizerOptions
 from .cmaes import CMAES, SepCMAES
 from .es import ESOptimizer
 from .neat import NeatOptimizer
@@ -85,6 +85,30 @@ def policy_from_export(exported: dict, device: str = "cpu") -> BatchedPolicy:
     return MLPPolicy.from_export(exported, device)
 
 
-__all__ = ["CMAES", "PGPE", "REGISTRY", "SNES", "BatchedPolicy", "ESOptimizer", "ExportError", "GenerationReport",
-           "NeatOptimizer", "OpenAIES", "Optimizer", "OptimizerOptions", "SepCMAES", "UnknownAlgorithmError",
-           "check_export", "controller_size", "make_optimizer", "policy_from_export"]
+def network_from_export(exported: dict, reference: dict | None = None, regulariser: str | None = None
+                        ) -> ControllerNetwork:
+    """What a drawing shows of what ``Optimizer.export`` wrote (``ControllerNetwork``): a NEAT
+    genome's nodes and connections (``neat.graph.genome_network``), an MLP's layers
+    (``mlp.mlp_network``), against ``reference`` (an export of the same family, such as
+    ``reference_export``'s; None: none), measured as the run's ``regulariser`` (a name of the
+    optimiser's ``regularisers``) measures it where the files allow. ExportError where either is
+    not an export (``check_export``) or they are not of one family and size."""
+    check_export(exported)
+    if reference is not None:
+        check_export(reference)
+        if reference.get("format") != exported.get("format"):
+            raise ExportError(f"the reference is a {reference.get('format') or 'MLP'} controller, "
+                              f"the controller a {exported.get('format') or 'MLP'} one")
+    if exported.get("format") == "neat-python-genome":
+        from .neat.graph import genome_network
+
+        return genome_network(exported, reference, regulariser)
+    from .mlp import mlp_network
+
+    return mlp_network(exported, reference)
+
+
+__all__ = ["CMAES", "PGPE", "REGISTRY", "SNES", "BatchedPolicy", "ControllerNetwork", "ESOptimizer", "ExportError",
+           "GenerationReport", "NeatOptimizer", "OpenAIES", "Optimizer", "OptimizerOptions", "SepCMAES",
+           "UnknownAlgorithmError", "check_export", "controller_size", "make_optimizer", "network_from_export",
+           "policy_from_export"]

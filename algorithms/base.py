@@ -75,6 +75,39 @@ class GenerationReport:
 
 
 @dataclass(frozen=True)
+class Connection:
+    """An enabled connection of a NEAT controller, as ``ControllerNetwork`` lists it."""
+
+    source: int
+    """neat-python's key of the node it reads: negative for an input."""
+    target: int
+    weight: float
+    new: bool
+    """The reference has no enabled connection from ``source`` to ``target`` (False without a reference)."""
+
+
+@dataclass(frozen=True)
+class ControllerNetwork:
+    """An exported controller as a drawing shows it, set against a reference controller
+    (``algorithms.network_from_export``): what it is made of, and how far it lies from the
+    reference by the measures its family has. A NEAT genome fills ``nodes`` and ``connections``,
+    an MLP ``layer_sizes`` and ``layer_distances``."""
+
+    nodes: tuple[tuple[int, str], ...] = ()
+    """NEAT: ``(key, role)`` of the inputs with an enabled connection, then every hidden and output
+    node in key order; ``role`` is ``input``, ``hidden`` or ``output``."""
+    connections: tuple[Connection, ...] = ()
+    """NEAT: the enabled connections, in the export's order."""
+    layer_sizes: tuple[int, ...] = ()
+    """An MLP: ``(inputs, *hidden, outputs)``."""
+    layer_distances: tuple[float, ...] = ()
+    """An MLP with a reference: per layer, the Euclidean distance of its weights and biases to the reference's."""
+    measures: tuple[tuple[str, float], ...] = ()
+    """``(what is measured, value)`` against the reference, in words a reader can take as they are
+    (``genetic distance``); empty without a reference."""
+
+
+@dataclass(frozen=True)
 class OptimizerOptions:
     """An optimiser's options, declared once: each field's default, its type (what a command-line
     or TOML value is parsed to), and its docstring (the one line ``python -m lifelong_evo options``

@@ -11,17 +11,21 @@ length ``n_l``. Layer ``l`` computes ``act(x @ W_l.T + b_l)``, with the portable
 [-128, 128]) and the activations from its tables, so a controller gives the same outputs on
 every CPU. With the default ``(41, 16, 3)``
 that is ``41*16 + 16 + 16*3 + 3 = 723`` parameters.
+
+``check_export`` refuses what is not an exported MLP; ``mlp_network`` gives one as a drawing shows
+it, its distance per layer to a reference.
 """
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Sequence
 
 import torch
 
 from envs import numerics
 
-from .base import ExportError, is_integer, is_number, shown_value
+from .base import ControllerNetwork, ExportError, is_integer, is_number, shown_value
 
 N_OUTPUTS = 3
 """Controller outputs (one per wheel)."""
@@ -129,3 +133,21 @@ def check_export(exported: dict, obs_dim: int | None = None) -> None:
     if len(params) != n_parameters(sizes):
         raise ExportError(f"parameters has {len(params)} numbers, and layer_sizes {sizes} need {n_parameters(sizes)}")
 
+
+
+def mlp_network(exported: dict, reference: dict | None = None) -> ControllerNetwork:
+    """The exported MLP as a drawing shows it (``algorithms.network_from_export``): its layer sizes
+    and, with a ``reference`` MLP, each layer's Euclidean distance (weights and biases) to the
+    reference's and that of all its parameters. The regulariser's own penalty is not given: l2's
+    is the squared distance over the parameter count, and ewc weighs each parameter by an
+    importance that no file holds. ExportError where the two have other layer sizes."""
+    sizes = tuple(exported["layer_sizes"])
+    if reference is None:
+        return ControllerNetwork(layer_sizes=sizes)
+    if tuple(reference["layer_sizes"]) != sizes:
+        raise ExportError(f"the reference has layer sizes {reference['layer_sizes']}, the controller {list(sizes)}")
+    mine, theirs = (unflatten(torch.tensor(e["parameters"], dtype=torch.float64), sizes) for e in (exported, reference))
+    distances = tuple(math.sqrt(((w - v) ** 2).sum().item() + ((b - c) ** 2).sum().item())
+                      for (w, b), (v, c) in zip(mine, theirs))
+    return ControllerNetwork(layer_sizes=sizes, layer_distances=distances,
+                             measures=(("Euclidean distance", math.sqrt(sum(d * d for d in distances))),))

@@ -48,10 +48,10 @@ from .episodes import play_episodes
 from .errors import RunDirError
 from .evaluate import BesideReference, Evaluation, evaluate, evaluate_together, update_threads
 from .held_out import score_controllers
-from .metrics import (INITIAL, FitnessStats, GenerationRecord, Retention, controller_key, retention, stability_gap,
-                      summarise)
+from .metrics import (INITIAL, REFERENCE, FitnessStats, GenerationRecord, Retention, controller_key, retention,
+                      stability_gap, summarise)
 from .metrics_csv import GenerationLog, MetricsLayout, read_metrics
-from .networks import network_view, reference_name
+from .networks import task_end_view
 from .progress import Progress
 from .provenance import ARITHMETIC_FIELDS, machine, same_native_arithmetic
 from .recording import Recorder
@@ -279,15 +279,17 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
                 seen = [t for t in tasks if t.name in phase_names[:phase_index + 1]]
                 _record_episodes(config, recorder, exported, seen, generation, phase_index, phase.name, env_config)
             if last:
-                # after the task's last tell, from which the optimiser takes its regulariser's reference
-                _finish_phase(run_dir, optimizer, state, phase_index, phase.name, scores, exports)
+                # after the task's last tell, from which end_task (below) takes the next reference: the
+                # reference this generation was regularised against, written beside its top controller
+                reference = optimizer.reference_export()
+                _finish_phase(run_dir, optimizer, state, phase_index, phase.name, scores, exports, reference)
                 state.held_out.update(score_controllers(
                     {controller_key(phase_index, phase.name, kind): controller for kind, controller in exports.items()},
                     env_config, tasks, config.held_out_episodes))
                 if config.archive:
                     state.archive[phase.name] = exports["top"]
                 if recorder.wants_episodes:
-                    _record_network(config, run_dir, recorder, exports["top"], generation, phase_names, phase_index)
+                    _record_network(config, recorder, exports["top"], reference, generation, phase_names, phase_index)
             # the regulariser's reference: at each task end, or boundary-free every reference_every generations
             if (generation + 1) % config.reference_every == 0 if config.reference_every else last:
                 optimizer.end_task()
@@ -407,9 +409,11 @@ def _exports(optimizer, raw: torch.Tensor, regularised: torch.Tensor, generation
 
 
 def _finish_phase(run_dir: RunDir, optimizer, state: LoopState, phase_index: int, name: str,
-                  scores: dict[str, Retention], exports: dict[str, dict[str, Any]]) -> None:
+                  scores: dict[str, Retention], exports: dict[str, dict[str, Any]],
+                  reference: dict[str, Any] | None) -> None:
     """Task end: record C and the retention on every task, and write the exported controllers
-    (the top one also as the latest, final-top)."""
+    (the top one also as the latest, final-top) and, where there is one, the regulariser's
+    ``reference`` they were selected against (``networks``)."""
     end = {"task": name, "C": scores[name].pop,
            "R_pop": {n: s.pop for n, s in scores.items()}, "R_top": {n: s.top for n, s in scores.items()}}
     if optimizer.centre_index is not None:
@@ -418,6 +422,8 @@ def _finish_phase(run_dir: RunDir, optimizer, state: LoopState, phase_index: int
     for kind, controller in exports.items():
         run_dir.write_controller(controller_key(phase_index, name, kind), controller)
     run_dir.write_controller("final-top", exports["top"])
+    if reference is not None:
+        run_dir.write_controller(controller_key(phase_index, name, REFERENCE), reference)
 
 
 def _record_episodes(config, recorder, exported, tasks, generation, phase_index, name, env_config) -> None:
@@ -429,14 +435,14 @@ def _record_episodes(config, recorder, exported, tasks, generation, phase_index,
         recorder.log_episode(generation, phase_index, name, task, episode)
 
 
-def _record_network(config, run_dir, recorder, exported, generation, phase_names, phase_index) -> None:
-    """The task end's top controller as a network against its reference (``networks``), read from
-    controllers/ as ``plot`` reads it (none where it is missing)."""
-    name = reference_name(config.to_dict(), phase_names, phase_index)
-    path = run_dir.controllers / f"{name}.json"
-    reference = run_dir.read_controller(path) if name and path.is_file() else None
-    recorder.log_network(generation, network_view(controller_key(phase_index, phase_names[phase_index], "top"),
-                                                  exported, name, reference))
+def _record_network(config, recorder, top, reference, generation, phase_names, phase_index) -> None:
+    """The task end's top controller against the reference written beside it (``networks``): the
+    controllers of the files ``plot`` draws from."""
+    name = phase_names[phase_index]
+    controllers = {controller_key(phase_index, name, "top"): top}
+    if reference is not None:
+        controllers[controller_key(phase_index, name, REFERENCE)] = reference
+    recorder.log_network(generation, task_end_view(config.to_dict(), phase_names, phase_index, controllers))
 
 
 def _checkpoint_payload(config, optimizer, generator, state) -> dict[str, Any]:

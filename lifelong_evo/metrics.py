@@ -159,6 +159,11 @@ distribution's centre and the best sampled solution (the best by selection fitne
 samples), each scored on its own."""
 INITIAL = "initial"
 """The name of the generation-0 controllers (``initial-top``): the forward-transfer baseline."""
+REFERENCE = "reference"
+"""The kind of the controller a task end writes beside its top one where the regulariser has a
+reference (``task1-green-reference``): the one that task's last generation was regularised
+against (``networks``). It is no phase's own controller, so it is never scored on held-out
+episodes (``parse_controller_key`` does not name it)."""
 
 
 def controller_key(phase_index: int | None, task: str | None, kind: str) -> str:

@@ -1,163 +1,121 @@
-"""What a regulariser keeps: a task end's top controller as a network, set against its reference.
+"""What a regulariser keeps: a task end's top controller as a network, set against the reference
+the regulariser pulled it towards.
 
-At every task end the recording (``Recorder.log_network``) and ``plot`` show the top controller
-(``task<i>-<task>-top``) next to the reference the regulariser anchors to, which is the previous
-task end's exported controller of the kind ``reference_kind`` names (the first task end has none):
+At every task end the loop writes, beside the top controller ``task<i>-<task>-top``, the reference
+that the task's last generation was regularised against, ``task<i>-<task>-reference``
+(``metrics.REFERENCE``): ``Optimizer.reference_export()`` before ``end_task`` takes the next one,
+so whatever rule the run's optimiser and settings take it by (NEAT's best genome of the task by
+selection fitness, an ES's centre after its last update or best sample, ``--reference-every``).
+A task end without a reference writes none: the first under the default rule, one after
+``--from-scratch`` started the optimiser afresh, any of an optimiser without ``reference_export``.
+The recording (``Recorder.log_network``, from the controllers the loop writes) and ``plot`` (from
+the files) both draw the top controller against that reference (``task_end_view``), so they show
+the same numbers; a run written before these files has none, and its drawings say the reference
+is unknown.
 
-- a NEAT genome: its nodes (the inputs it reads, hidden nodes, the outputs) and its enabled
-  connections with their weights, each marked ``new`` where the reference has no enabled
-  connection between the same nodes, and neat-python's genetic distance to the reference (the
-  regulariser's own measure);
-- an MLP (an ES): its layer sizes and the Euclidean distance of each layer's weights and biases
-  to the reference's, and of all of them.
-
-Everything here is computed from exported controllers (``Optimizer.export``), so the loop and
-``plot``, which reads them from controllers/, show the same numbers.
+What a controller is made of and how far it lies from the reference is the algorithm's
+(``algorithms.network_from_export``): NEAT's nodes and enabled connections (``new`` where the
+reference lacks them) and the genetic distance, or weight protection's two sums under ``wp``; an
+MLP's layer sizes and Euclidean distance per layer. This module only lays a network out
+(``columns``) and says in one line what was measured against which file under which regulariser
+and lambda (``describe``). A measure is named as what it is, not as the penalty: where the
+regulariser penalises what the files cannot show (``functional``: outputs; ``ewc``: weighted
+parameters; NEAT's ``references`` > 1: the mean over several references, of which the file is the
+latest) the line names the regulariser beside the measure.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
-import torch
+from algorithms import ControllerNetwork, ExportError, network_from_export
 
-from algorithms.mlp import unflatten
-from algorithms.neat.config import build_neat_config
-from algorithms.neat.export import genome_from_export
-
-from .metrics import controller_key
-
-
-@dataclass(frozen=True)
-class Node:
-    key: int
-    """neat-python's node key: negative for an input, 0 to 2 for the outputs."""
-    role: str
-    """``input``, ``hidden`` or ``output``."""
-    depth: int
-    """Its column in a drawing: 0 for the inputs, else one more than the deepest node feeding it."""
-
-
-@dataclass(frozen=True)
-class Edge:
-    source: int
-    target: int
-    weight: float
-    new: bool
-    """The reference has no enabled connection from ``source`` to ``target``."""
+from .config import DEFAULT_REGULARISER, RunConfig
+from .errors import RunDirError
+from .metrics import REFERENCE, controller_key
 
 
 @dataclass(frozen=True)
 class NetworkView:
-    """A controller as a network, and how far it lies from its reference."""
+    """A task end's top controller as a network, against its reference."""
 
     controller: str
     """Its name in controllers/ (``task1-green-top``)."""
-    reference: str | None
-    """The reference's name (None: no reference, or it was not found)."""
-    distance: float | None
-    """NEAT: the genetic distance to the reference; an MLP: the Euclidean distance of all its parameters."""
-    nodes: tuple[Node, ...] = ()
-    """NEAT: the inputs with an enabled connection, the hidden nodes and the outputs."""
-    edges: tuple[Edge, ...] = ()
-    """NEAT: the enabled connections."""
-    layer_sizes: tuple[int, ...] = ()
-    """An MLP: ``(inputs, *hidden, outputs)``."""
-    layer_distances: tuple[float, ...] = ()
-    """An MLP: per layer, the Euclidean distance of its weights and biases to the reference's."""
+    reference: str
+    """The name its reference has in controllers/ (``task1-green-reference``), whether or not there is one."""
+    found: bool
+    """Whether there is that reference: ``network`` measures nothing against it otherwise."""
+    regulariser: str
+    """The run's regulariser and lambda, in words (``regulariser gd, lambda 11``)."""
+    network: ControllerNetwork
+    """What the algorithm draws of the controller against the reference (``algorithms.network_from_export``)."""
 
     @property
     def is_neat(self) -> bool:
-        return bool(self.nodes)
+        return bool(self.network.nodes)
 
 
-def reference_kind(config: dict[str, Any]) -> str:
-    """The kind of exported controller (``metrics.HELD_OUT_LEVELS``) the run's regulariser anchors
-    to, from config.json's values: NEAT's top genome (its reference is the task's best genome by
-    selection fitness); an ES's centre, or its top controller with ``reference = "best"``."""
-    options = config.get("algo_options_resolved") or config.get("algo_options") or {}
-    return "centre" if config.get("algo") != "neat" and options.get("reference", "centre") == "centre" else "top"
+def regulariser_label(config: dict[str, Any]) -> str:
+    """The regulariser of a run (config.json's values) and its lambda, in words."""
+    name = RunConfig.regulariser_of(config)
+    regulariser = "the optimiser's own regulariser" if name == DEFAULT_REGULARISER else f"regulariser {name}"
+    reg = float(config.get("reg") or 0)
+    return f"{regulariser}, lambda {reg:g}" if reg else f"{regulariser} off (lambda 0)"
 
 
-def reference_name(config: dict[str, Any], phase_names: list[str], phase_index: int) -> str | None:
-    """The name of the reference of phase ``phase_index``'s top controller: the previous task end's
-    controller of ``reference_kind``; None at the first task end."""
-    if phase_index == 0:
-        return None
-    return controller_key(phase_index - 1, phase_names[phase_index - 1], reference_kind(config))
+def task_end_view(config: dict[str, Any], phase_names: list[str], index: int,
+                  controllers: dict[str, dict[str, Any]]) -> NetworkView:
+    """Phase ``index``'s top controller against its reference, both taken from ``controllers`` (by
+    name, as controllers/ holds them; the top one must be there)."""
+    top = controller_key(index, phase_names[index], "top")
+    name = controller_key(index, phase_names[index], REFERENCE)
+    reference = controllers.get(name)
+    regulariser = RunConfig.regulariser_of(config)
+    return NetworkView(top, name, reference is not None, regulariser_label(config),
+                       network_from_export(controllers[top], reference, regulariser))
 
 
-def network_view(name: str, exported: dict[str, Any], reference_of: str | None = None,
-                 reference: dict[str, Any] | None = None) -> NetworkView:
-    """The exported controller ``name`` as a network, against ``reference`` (named ``reference_of``;
-    None: no reference)."""
-    if reference is None:
-        reference_of = None
-    if exported.get("format") == "neat-python-genome":
-        return _neat_view(name, exported, reference_of, reference)
-    return _mlp_view(name, exported, reference_of, reference)
-
-
-def _neat_view(name: str, exported: dict[str, Any], reference_of: str | None,
-               reference: dict[str, Any] | None) -> NetworkView:
-    links = [c for c in exported["genome"]["connections"] if c["enabled"]]
-    kept = {(c["in"], c["out"]) for c in reference["genome"]["connections"] if c["enabled"]} if reference else set()
-    outputs = range(exported["num_outputs"])
-    keys = sorted({c["in"] for c in links if c["in"] < 0}) + [n["key"] for n in exported["genome"]["nodes"]]
-    depth = {key: 0 if key < 0 else 1 for key in keys}
-    for _ in keys:  # longest path from the inputs (the network is feed-forward)
-        for link in links:
-            depth[link["out"]] = max(depth[link["out"]], depth[link["in"]] + 1)
-    nodes = tuple(Node(key, "input" if key < 0 else "output" if key in outputs else "hidden", depth[key])
-                  for key in keys)
-    edges = tuple(Edge(c["in"], c["out"], c["weight"], reference is not None and (c["in"], c["out"]) not in kept)
-                  for c in links)
-    distance = None
-    if reference is not None:
-        config = build_neat_config(exported["num_inputs"], genetics=exported["genetics"])
-        genome, anchor = (genome_from_export(e, config) for e in (exported, reference))
-        distance = anchor.distance(genome, config.genome_config)  # as the regulariser measures it
-    return NetworkView(name, reference_of, distance, nodes=nodes, edges=edges)
-
-
-def _mlp_view(name: str, exported: dict[str, Any], reference_of: str | None,
-              reference: dict[str, Any] | None) -> NetworkView:
-    sizes = tuple(exported["layer_sizes"])
-    distances: tuple[float, ...] = ()
-    if reference is not None and tuple(reference["layer_sizes"]) == sizes:
-        mine, theirs = (unflatten(torch.tensor(e["parameters"], dtype=torch.float64), sizes)
-                        for e in (exported, reference))
-        distances = tuple(math.sqrt(((w - v) ** 2).sum().item() + ((b - c) ** 2).sum().item())
-                          for (w, b), (v, c) in zip(mine, theirs))
-    else:
-        reference_of = None
-    distance = math.sqrt(sum(d * d for d in distances)) if distances else None
-    return NetworkView(name, reference_of, distance, layer_sizes=sizes, layer_distances=distances)
-
-
-def task_end_views(config: dict[str, Any], phase_names: list[str],
-                   controllers: dict[str, dict[str, Any]]) -> list[tuple[int, NetworkView]]:
-    """``(phase index, view)`` of every task end whose top controller ``controllers`` (by name, as
-    controllers/ holds them) has, against its reference where that is there too."""
+def task_end_views(config: dict[str, Any], phase_names: list[str], controllers: dict[str, dict[str, Any]],
+                   folder: Path) -> list[tuple[int, NetworkView]]:
+    """``(phase index, view)`` of every task end whose top controller ``controllers`` (read from
+    the controllers/ ``folder``) has; RunDirError where a reference is not of its top controller's
+    family and size (a damaged file)."""
     views = []
     for i, name in enumerate(phase_names):
-        top = controller_key(i, name, "top")
-        if top in controllers:
-            reference = reference_name(config, phase_names, i)
-            views.append((i, network_view(top, controllers[top], reference, controllers.get(reference))))
+        if controller_key(i, name, "top") in controllers:
+            try:
+                views.append((i, task_end_view(config, phase_names, i, controllers)))
+            except ExportError as error:
+                reference = folder / f"{controller_key(i, name, REFERENCE)}.json"
+                raise RunDirError(f"{reference} is not the reference of {controller_key(i, name, 'top')}.json: "
+                                  f"{error}: restore it from a copy of the run, or delete it") from None
     return views
 
 
+def columns(network: ControllerNetwork) -> dict[int, int]:
+    """Each NEAT node's column in a drawing, by key: 0 for the inputs, else one more than the
+    deepest node feeding it (1 for a node nothing feeds)."""
+    depth = {key: 0 if role == "input" else 1 for key, role in network.nodes}
+    for _ in network.nodes:  # the longest path from the inputs (the network is feed-forward)
+        for link in network.connections:
+            depth[link.target] = max(depth[link.target], depth[link.source] + 1)
+    return depth
+
+
 def describe(view: NetworkView) -> str:
-    """One line: what the network is and how far it lies from its reference."""
+    """One line: what the network is, what was measured against which reference, and the regulariser."""
+    network = view.network
     if view.is_neat:
-        hidden = sum(node.role == "hidden" for node in view.nodes)
-        new = sum(edge.new for edge in view.edges)
-        shape = f"{hidden} hidden nodes, {len(view.edges)} enabled connections"
-        moved = (f"; genetic distance {view.distance:.3g} to {view.reference}, which lacks {new} of them"
-                 if view.reference else "")
+        hidden = sum(role == "hidden" for _, role in network.nodes)
+        shape = f"{hidden} hidden nodes, {len(network.connections)} enabled connections"
     else:
-        shape = "layers " + " -> ".join(map(str, view.layer_sizes))
-        moved = f"; distance {view.distance:.3g} to {view.reference}" if view.reference else ""
-    return f"{view.controller}: {shape}{moved}"
+        shape = "layers " + " -> ".join(map(str, network.layer_sizes))
+    if view.found:
+        measured = ", ".join(f"{what} {value:.3g}" for what, value in network.measures)
+        lacks = f", which lacks {sum(link.new for link in network.connections)} of them" if view.is_neat else ""
+        against = f"{measured} to {view.reference}{lacks}"
+    else:
+        against = (f"reference unknown (no {view.reference}: the regulariser had none at this task end, "
+                   "or the run was written before runs kept it)")
+    return f"{view.controller}: {shape}; {against}; {view.regulariser}"

@@ -158,6 +158,8 @@ def test_from_scratch_starts_each_task_afresh_whatever_came_before(tmp_path, alg
     # each phase its own fresh population: the seed comes from the phase, not only the run
     three = _run(tmp_path, "three", algo=algo, schedule="red:2,green:2,red:2", from_scratch=True)
     assert not _same(_state(three, 4), _state(after_red, 2))
+    # nor is any phase regularised: no task end has a reference to draw its top controller against
+    assert not list(three.controllers.glob("*-reference.json"))
 
 
 # -- the regulariser's reference without a boundary --------------------------------------------

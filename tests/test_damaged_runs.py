@@ -98,6 +98,12 @@ def wrong_layer_sizes(controller: dict) -> None:
     controller["parameters"] = [0.1] * (10 * 16 + 16 + 16 * 3 + 3)
 
 
+def other_hidden_sizes(controller: dict) -> None:
+    """A whole MLP that plays in the arena (41 inputs), of other hidden sizes than the run's (16)."""
+    controller["layer_sizes"] = [41, 8, 3]
+    controller["parameters"] = [0.1] * (41 * 8 + 8 + 8 * 3 + 3)
+
+
 def every_controller(change):
     def damage(run: Path) -> None:
         for path in sorted((run / "controllers").glob("*.json")):
@@ -143,6 +149,8 @@ CASES = [
      ["plot", "compare"]),
     ("summary.json phases disagree with config.json", "neat",
      edit_json("summary.json", lambda s: s.update(phases=["green", *s["phases"][1:]])), ["plot", "compare"]),
+    ("ES reference not of its top controller's size", "es",
+     edit_json("controllers/task1-green-reference.json", other_hidden_sizes), ["plot"]),
 ]
 REFUSALS = [pytest.param(kind, damage, verb, id=f"{name}-{verb}") for name, kind, damage, verbs in CASES
             for verb in verbs]

@@ -77,6 +77,18 @@ def test_the_environment_and_the_optimisers_never_import_the_lifelong_tools():
                 if t.split(".")[0] == "algorithms"], "the environment knows nothing of the optimisers"
 
 
+def test_the_run_core_reaches_the_optimisers_through_their_interface():
+    """The run core and the analysis import ``algorithms`` (the registry, exports, the drawings of
+    controllers) and ``algorithms.base`` only, never a family's own modules: what is NEAT's or an
+    MLP's stays behind ``algorithms`` (the benchmark, a command, builds MLP policies itself)."""
+    core = [name for name in MODULES if name.split(".")[0] == "lifelong_evo"
+            and not name.startswith("lifelong_evo.commands")]
+    assert "lifelong_evo.networks" in core and "lifelong_evo.analysis.figures" in core
+    offending = {name: sorted(t for t in GRAPH[name] if t.split(".")[0] == "algorithms"
+                              and t not in ("algorithms", "algorithms.base")) for name in core}
+    assert not {k: v for k, v in offending.items() if v}
+
+
 def test_the_run_core_never_imports_a_command():
     core = [name for name in MODULES if name.split(".")[0] == "lifelong_evo"
             and not name.startswith("lifelong_evo.commands") and name not in ENTRY_POINTS]

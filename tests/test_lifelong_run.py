@@ -83,11 +83,12 @@ def test_run_directory_contract(smoke_runs, name):
     resolved = asdict(REGISTRY[config["algo"]].Options(**config["algo_options"]))
     assert config["algo_options_resolved"] == json.loads(json.dumps(resolved))
     assert "genetics" in config["algo_options_resolved"] or config["algo"] != "neat"
-    # the top individual at every task end and at generation 0; an ES's centre and best sample too
+    # the top individual at every task end and at generation 0; an ES's centre and best sample too;
+    # beside each later task end's, the regulariser's reference (the first task end has none yet)
     kinds = ["best-sample", "centre", "top"] if config["algo"] != "neat" else ["top"]
     assert sorted(p.name for p in (run / "controllers").glob("*.json")) == sorted(
         ["final-top.json", *(f"{phase}-{kind}.json" for phase in ("initial", "task0-red", "task1-green", "task2-red")
-                             for kind in kinds)])
+                             for kind in kinds), "task1-green-reference.json", "task2-red-reference.json"])
     exported = json.loads((run / "controllers/final-top.json").read_text())
     assert exported == json.loads((run / "controllers/task2-red-top.json").read_text())
     # the scores of the generation it was exported in (an elite's fitness from an earlier one was kept before)

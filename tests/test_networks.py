@@ -1,24 +1,35 @@
-"""What a regulariser keeps (``lifelong_evo.networks``): each task end's top controller as a
-network against its reference, in the recording and as ``plot``'s PNGs, from the same files."""
+"""What a regulariser keeps (``lifelong_evo.networks``, drawn by ``algorithms.network_from_export``):
+each task end's top controller against the reference its generation was regularised against,
+written beside it (``task<i>-<task>-reference.json``), in the recording and as ``plot``'s PNGs,
+from the same controllers."""
 from __future__ import annotations
 
 import json
+import math
+import shutil
 from collections import defaultdict
 from pathlib import Path
 
 import pytest
 import torch
 
-from algorithms import make_optimizer
-from algorithms.mlp import n_parameters
+from algorithms import ESOptimizer, NeatOptimizer, make_optimizer, network_from_export
+from algorithms.mlp import n_parameters, unflatten
 from algorithms.neat.genetics import GENETICS
+from algorithms.neat.optimizer import weight_protection
 from lifelong_evo.analysis import figures as plots
 from lifelong_evo.commands.cli import main
-from lifelong_evo.networks import network_view, reference_name, task_end_views
+from lifelong_evo.networks import describe, task_end_view, task_end_views
 
 rerun_chunk = pytest.importorskip("rerun.chunk")
 PNG = b"\x89PNG\r\n\x1a\n"
+PHASES = ["red", "green", "red"]
 ENDS = ("task0-red", "task1-green", "task2-red")
+END_GENERATIONS = (1, 3, 5)
+"""The task ends of ``red:2,green:2,red:2``."""
+
+
+# ------------------------------------------------------------------ the algorithms' drawings
 
 
 @pytest.mark.parametrize("genetics", GENETICS)
@@ -32,45 +43,70 @@ def test_neat_distance_is_the_regularisers(genetics):
     optimizer.tell(fitness, fitness)
     optimizer.end_task()
     genomes = optimizer.ask() and optimizer.asked_genomes
-    anchor = optimizer.export(genomes.index(optimizer.reference_genomes[-1]))
+    anchor = optimizer.reference_export()
     expected = optimizer.distances_to_references().tolist()
-    views = [network_view(f"g{i}", optimizer.export(i), "anchor", anchor) for i in range(len(genomes))]
-    assert [view.distance for view in views] == pytest.approx(expected, rel=1e-12)
-    assert min(view.distance for view in views) == 0.0 and max(expected) > 0
+    measured = [network_from_export(optimizer.export(i), anchor, "gd").measures for i in range(len(genomes))]
+    assert [dict(m)["genetic distance"] for m in measured] == pytest.approx(expected, rel=1e-12)
+    assert min(expected) == 0.0 and max(expected) > 0
 
 
-def test_neat_view_draws_enabled_connections_and_marks_the_new_ones():
+def test_under_weight_protection_neat_measures_its_two_sums():
+    """``wp`` penalises lambda_1 times the squared changes of the weights the reference has plus
+    lambda_2 times the squared weights it lacks: the drawing gives those two sums, not the
+    genetic distance, which ``wp`` does not measure."""
+    optimizer = make_optimizer("neat", obs_dim=31, population_size=20, seed=4, reg=0.4, penalty="wp")
+    optimizer.ask()
+    exported, other = optimizer.export(0), optimizer.export(1)
+    shared, new = weight_protection(*(optimizer.asked_genomes[i] for i in (0, 1)))
+    measures = network_from_export(exported, other, "wp").measures  # summed in the export's order
+    assert [what for what, _ in measures] == ["sum of squared weight changes", "sum of squared new weights"]
+    assert [value for _, value in measures] == pytest.approx([shared, new], rel=1e-12)
+    assert shared > 0 and new > 0
+    assert [what for what, _ in network_from_export(exported, other, "functional").measures] == ["genetic distance"]
+
+
+def test_neat_drawing_shows_enabled_connections_and_marks_the_new_ones():
     optimizer = make_optimizer("neat", obs_dim=31, population_size=20, seed=4)
     optimizer.ask()
     exported, other = optimizer.export(0), optimizer.export(1)
-    view = network_view("mine", exported, "other", other)
+    network = network_from_export(exported, other, "gd")
     enabled = [c for c in exported["genome"]["connections"] if c["enabled"]]
-    assert [(e.source, e.target, e.weight) for e in view.edges] == [(c["in"], c["out"], c["weight"]) for c in enabled]
+    links = network.connections
+    assert [(e.source, e.target, e.weight) for e in links] == [(c["in"], c["out"], c["weight"]) for c in enabled]
     theirs = {(c["in"], c["out"]) for c in other["genome"]["connections"] if c["enabled"]}
-    assert [e.new for e in view.edges] == [(c["in"], c["out"]) not in theirs for c in enabled]
-    assert any(e.new for e in view.edges) and not all(e.new for e in view.edges)
-    assert {n.key for n in view.nodes if n.role == "input"} == {c["in"] for c in enabled if c["in"] < 0}
-    assert [n.key for n in view.nodes if n.role == "output"] == [0, 1, 2]
-    assert all(n.depth == 0 for n in view.nodes if n.role == "input")
-    assert network_view("mine", exported).distance is None and not any(e.new for e in network_view("m", exported).edges)
+    assert [e.new for e in links] == [(c["in"], c["out"]) not in theirs for c in enabled]
+    assert any(e.new for e in links) and not all(e.new for e in links)
+    assert {key for key, role in network.nodes if role == "input"} == {c["in"] for c in enabled if c["in"] < 0}
+    assert [key for key, role in network.nodes if role == "output"] == [0, 1, 2]
+    alone = network_from_export(exported)
+    assert alone.measures == () and not any(e.new for e in alone.connections)
 
 
-def test_mlp_view_measures_each_layer():
+def test_mlp_drawing_measures_each_layer():
     sizes = [5, 4, 3]
     reference = {"layer_sizes": sizes, "parameters": [0.0] * n_parameters(sizes)}
     moved = {"layer_sizes": sizes, "parameters": [1.0] * (5 * 4 + 4) + [0.0] * (4 * 3 + 3)}
-    view = network_view("moved", moved, "reference", reference)
-    assert view.layer_sizes == (5, 4, 3) and view.layer_distances == pytest.approx([24 ** 0.5, 0.0])
-    assert view.distance == pytest.approx(24 ** 0.5)
+    network = network_from_export(moved, reference, "ewc")
+    assert network.layer_sizes == (5, 4, 3) and network.layer_distances == pytest.approx([24 ** 0.5, 0.0])
+    assert network.measures == (("Euclidean distance", pytest.approx(24 ** 0.5)),)
 
 
-def test_the_reference_is_the_previous_task_ends_of_the_regularisers_kind():
-    names = ["red", "green", "red"]
-    assert reference_name({"algo": "neat"}, names, 0) is None
-    assert reference_name({"algo": "neat"}, names, 2) == "task1-green-top"
-    assert reference_name({"algo": "sep-cmaes", "algo_options_resolved": {"reference": "centre"}}, names, 1) == \
-        "task0-red-centre"
-    assert reference_name({"algo": "openai-es", "algo_options": {"reference": "best"}}, names, 1) == "task0-red-top"
+def test_the_line_names_what_was_measured_against_which_file_under_which_regulariser():
+    sizes = [5, 4, 3]
+    top = {"layer_sizes": sizes, "parameters": [1.0] * n_parameters(sizes)}
+    reference = {"layer_sizes": sizes, "parameters": [0.0] * n_parameters(sizes)}
+    controllers = {"task1-green-top": top, "task1-green-reference": reference}
+    es = {"algo": "sep-cmaes", "reg": 2.0, "regulariser": "ewc"}
+    line = describe(task_end_view(es, ["red", "green"], 1, controllers))
+    assert line == (f"task1-green-top: layers 5 -> 4 -> 3; Euclidean distance {math.sqrt(39):.3g} to "
+                    "task1-green-reference; regulariser ewc, lambda 2")
+    assert describe(task_end_view({**es, "reg": 0}, ["red", "green"], 1, controllers)).endswith(
+        "; regulariser ewc off (lambda 0)")
+    assert "reference unknown (no task1-green-reference:" in describe(
+        task_end_view(es, ["red", "green"], 1, {"task1-green-top": top}))
+
+
+# ------------------------------------------------------------------ runs: the loop, the recording and plot
 
 
 def _network_rows(path: Path) -> dict[str, list[dict]]:
@@ -83,63 +119,153 @@ def _network_rows(path: Path) -> dict[str, list[dict]]:
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
+    """Two recorded runs of ``red:2,green:2,red:2``, and what their optimisers held:
+
+    - ``neat``, taking its reference every 3 generations (at generations 2 and 5), so that each
+      task end's reference is the best genome of generations the loop exports nothing of, not the
+      previous task end's top one (at seed 2: at others, an elite that the task ends export as
+      their top too); ``penalties``: per generation, the distance to the reference
+      that the regulariser subtracted from each genome's fitness, and the selection fitness;
+    - ``sep-cmaes``, taking it at task ends; ``centres``: the centre each ``end_task`` took (after
+      the task's last update, one update past the task end's exported centre)."""
     out = tmp_path_factory.mktemp("networks")
-    for algo in ("neat", "sep-cmaes"):
-        assert main(["--algo", algo, "--reg", "1", "--preset", "smoke", "--schedule", "red:2,green:2,red:2",
-                     "--env", "duration=60", "--out", str(out), "--name", algo, "--quiet"]) == 0
-    return out
+    penalties, centres = [], []
+    regularise, end_task = NeatOptimizer.regularise, ESOptimizer.end_task
+
+    def kept_penalty(self, fitness):
+        selection = regularise(self, fitness)
+        distances = self.distances_to_references()
+        penalties.append((None if distances is None else distances.clone(), selection.clone()))
+        return selection
+
+    def kept_centre(self):
+        centres.append(self.centre.detach().clone())
+        end_task(self)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(NeatOptimizer, "regularise", kept_penalty)
+        patch.setattr(ESOptimizer, "end_task", kept_centre)
+        for algo, flags in (("neat", ["--reference-every", "3", "--seed", "2"]), ("sep-cmaes", [])):
+            assert main(["--algo", algo, "--reg", "1", "--preset", "smoke", "--schedule", "red:2,green:2,red:2",
+                         "--env", "duration=60", *flags, "--out", str(out), "--name", algo, "--quiet"]) == 0
+    return out, penalties, centres
+
+
+def _controllers(run: Path) -> dict[str, dict]:
+    return {p.stem: json.loads(p.read_text()) for p in (run / "controllers").glob("*.json")}
 
 
 def _views(run: Path):
-    controllers = {p.stem: json.loads(p.read_text()) for p in (run / "controllers").glob("*.json")}
-    return task_end_views(json.loads((run / "config.json").read_text()), ["red", "green", "red"], controllers)
+    """What ``plot`` draws of ``run``: every task end's view, from its files."""
+    return dict(task_end_views(json.loads((run / "config.json").read_text()), PHASES, _controllers(run),
+                               run / "controllers"))
 
 
-def test_the_recording_shows_each_task_ends_network(runs):
+def test_neat_is_drawn_against_the_reference_it_was_regularised_against(runs):
+    """The genetic distance drawn at a task end is the one the regulariser subtracted from the top
+    genome's fitness in that generation, to a genome of a generation the loop exported nothing
+    of: neither the previous task end's top genome nor one of this task's."""
+    out, penalties, _ = runs
+    controllers, views = _controllers(out / "neat"), _views(out / "neat")
+    assert "task0-red-reference" not in controllers  # no reference before generation 2
+    assert not views[0].found
+    tops = [controllers[f"{end}-top"]["genome"] for end in ENDS]
+    for i in (1, 2):
+        assert controllers[f"{ENDS[i]}-reference"]["genome"] not in tops  # the test bites on the old rule
+        distances, selection = penalties[END_GENERATIONS[i]]
+        top = int(selection.argmax())
+        assert views[i].found and dict(views[i].network.measures)["genetic distance"] == pytest.approx(
+            distances[top].item(), rel=1e-12)
+    # one reference (taken at generation 2) for both task ends: the distances differ only by the top genome
+    assert controllers["task1-green-reference"]["genome"] == controllers["task2-red-reference"]["genome"]
+
+
+def test_an_es_is_drawn_against_the_centre_after_its_last_update(runs):
+    """The reference an ES takes at a task end is its centre after the task's last update, one
+    update past the centre exported at that task end (before that update)."""
+    out, _, centres = runs
+    controllers, views = _controllers(out / "sep-cmaes"), _views(out / "sep-cmaes")
+    assert "task0-red-reference" not in controllers
+    for i in (1, 2):
+        reference = torch.tensor(controllers[f"{ENDS[i]}-reference"]["parameters"])
+        assert torch.equal(reference, centres[i - 1])
+        exported_centre = torch.tensor(controllers[f"{ENDS[i - 1]}-centre"]["parameters"])
+        assert not torch.equal(reference, exported_centre)  # the test bites on the exported centre
+        sizes = controllers[f"{ENDS[i]}-top"]["layer_sizes"]
+        top = torch.tensor(controllers[f"{ENDS[i]}-top"]["parameters"], dtype=torch.float64)
+        layers = zip(unflatten(top, sizes), unflatten(centres[i - 1].double(), sizes))
+        expected = [math.sqrt(((w - v) ** 2).sum() + ((b - c) ** 2).sum()) for (w, b), (v, c) in layers]
+        assert views[i].network.layer_distances == pytest.approx(expected, rel=1e-12)
+
+
+def test_the_recording_draws_what_plot_draws(runs):
     """At each task end (generations 1, 3, 5) the recording holds the top controller's graph (NEAT:
-    its enabled connections with their weights, the new ones against the previous task end's top
-    genome) or its layer distances (ES), as computed from the stored controllers."""
-    neat = _network_rows(runs / "neat/recording.rrd")
+    its enabled connections with their weights, the new ones against the reference) or its layer
+    distances (ES), and the line describing it, as ``plot`` computes them from the files."""
+    out = runs[0]
+    neat = _network_rows(out / "neat/recording.rrd")
     graphs = {row["generation"]: row for row in neat["network/graph"] if row.get("GraphEdges:edges")}
     nodes = {row["generation"]: row for row in neat["network/graph"] if row.get("GraphNodes:node_ids")}
-    views = dict(_views(runs / "neat"))
-    assert sorted(graphs) == sorted(nodes) == [1, 3, 5]
-    for i, generation in enumerate((1, 3, 5)):
-        view = views[i]
-        assert graphs[generation]["GraphEdges:edges"] == [{"first": str(e.source), "second": str(e.target)}
-                                                         for e in view.edges]
-        assert graphs[generation]["weight"] == [e.weight for e in view.edges]
-        assert graphs[generation]["new"] == [e.new for e in view.edges]
-        assert nodes[generation]["GraphNodes:node_ids"] == [str(n.key) for n in view.nodes]
-    assert views[0].reference is None and views[2].reference == "task1-green-top" and views[2].distance > 0
     summaries = {row["generation"]: row["TextDocument:text"][0] for row in neat["network/summary"]}
-    assert f"genetic distance {views[1].distance:.3g} to task0-red-top" in summaries[3]
+    views = _views(out / "neat")
+    assert sorted(graphs) == sorted(nodes) == sorted(summaries) == list(END_GENERATIONS)
+    for i, generation in enumerate(END_GENERATIONS):
+        links = views[i].network.connections
+        assert graphs[generation]["GraphEdges:edges"] == [{"first": str(e.source), "second": str(e.target)}
+                                                         for e in links]
+        assert graphs[generation]["weight"] == [e.weight for e in links]
+        assert graphs[generation]["new"] == [e.new for e in links]
+        assert nodes[generation]["GraphNodes:node_ids"] == [str(key) for key, _ in views[i].network.nodes]
+        assert summaries[generation].startswith(f"## {describe(views[i])}\n")
+    assert "genetic distance" in summaries[3] and "regulariser gd, lambda 1" in summaries[3]
 
-    es = _network_rows(runs / "sep-cmaes/recording.rrd")
+    es = _network_rows(out / "sep-cmaes/recording.rrd")
     bars = {row["generation"]: row["BarChart:values"][0]["buffer"] for row in es["network/layer_distance"]}
-    views = dict(_views(runs / "sep-cmaes"))
+    views = _views(out / "sep-cmaes")
     assert sorted(bars) == [3, 5]  # the first task end has no reference
-    assert bars[3] == pytest.approx(views[1].layer_distances) and bars[5] == pytest.approx(views[2].layer_distances)
-    assert views[2].reference == "task1-green-centre" and len(views[2].layer_distances) == 2
+    assert bars[3] == pytest.approx(views[1].network.layer_distances, rel=1e-12)
+    assert bars[5] == pytest.approx(views[2].network.layer_distances, rel=1e-12)
+    summaries = {row["generation"]: row["TextDocument:text"][0] for row in es["network/summary"]}
+    assert all(summaries[g].startswith(f"## {describe(views[i])}\n") for i, g in enumerate(END_GENERATIONS))
 
 
-def test_plot_draws_a_png_per_task_end(runs, tmp_path, monkeypatch):
+def _titles(monkeypatch) -> dict[str, tuple[str, list[int], list[int]]]:
+    """Each figure plot saves, by file name: its title, and per axes its lines and patches."""
     drawn = {}
     save = plots.save
 
     def keep(fig, path):
-        drawn[path.name] = [len(ax.lines) for ax in fig.axes], [len(ax.patches) for ax in fig.axes]
+        axes = fig.axes
+        drawn[path.name] = (axes[0].get_title(), [len(ax.lines) for ax in axes], [len(ax.patches) for ax in axes])
         return save(fig, path)
 
     monkeypatch.setattr(plots, "save", keep)
+    return drawn
+
+
+def test_plot_draws_a_png_per_task_end(runs, tmp_path, monkeypatch):
+    drawn = _titles(monkeypatch)
     for algo in ("neat", "sep-cmaes"):
-        assert main(["plot", str(runs / algo), "--out", str(tmp_path)]) == 0
-    for algo, views in (("neat", _views(runs / "neat")), ("sep-cmaes", _views(runs / "sep-cmaes"))):
-        for (i, view), end in zip(views, ENDS):
+        assert main(["plot", str(runs[0] / algo), "--out", str(tmp_path)]) == 0
+        for i, end in enumerate(ENDS):
             name = f"{algo}-red-2-green-2-red-2-reg1-network-{end}.png"
+            view = _views(runs[0] / algo)[i]
             assert (tmp_path / name).read_bytes().startswith(PNG)
-            lines, bars = drawn[name]
+            title, lines, bars = drawn[name]
+            assert title.split("\n", 1)[1].replace("\n", " ") == describe(view)
             if algo == "neat":
-                assert lines == [len(view.edges)]  # one line per enabled connection
+                assert lines == [len(view.network.connections)]  # one line per enabled connection
             else:
                 assert bars == [2]  # one bar per layer
+
+
+def test_plot_of_a_run_without_reference_files_says_the_reference_is_unknown(runs, tmp_path, monkeypatch):
+    """A run written before task ends kept their reference is drawn all the same, without a distance."""
+    old = tmp_path / "old"
+    shutil.copytree(runs[0] / "sep-cmaes", old)
+    for path in old.glob("controllers/*-reference.json"):
+        path.unlink()
+    drawn = _titles(monkeypatch)
+    assert main(["plot", str(old), "--out", str(tmp_path / "figures")]) == 0
+    title, _, _ = drawn["sep-cmaes-red-2-green-2-red-2-reg1-network-task1-green.png"]
+    assert "reference unknown (no task1-green-reference" in title and "distance" not in title

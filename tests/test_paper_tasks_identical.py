@@ -17,6 +17,7 @@ import torch
 
 from envs import TASKS, ForagingConfig, ForagingEnv
 from lifelong_evo.commands.cli import main
+from lifelong_evo.metrics import REFERENCE
 
 STORED = Path(__file__).resolve().parent / "data" / "paper-tasks"
 FLAGS = ["--preset", "smoke", "--generations", "3", "--env", "duration=60", "--seed", "42",
@@ -31,9 +32,11 @@ STEP_DIGESTS = STORED / "step-sha256.json"
 
 def compared_files(run: Path) -> list[str]:
     """The files of a run directory the test compares, relative to it: metrics.csv, species.csv
-    (NEAT's) and every controller."""
+    (NEAT's) and every controller but the regulariser's references, which task ends write since
+    issue #62, after the stored runs were made (``tests/test_networks.py`` checks them)."""
     names = [name for name in ("metrics.csv", "species.csv") if (run / name).exists()]
-    return names + sorted(f"controllers/{path.name}" for path in (run / "controllers").glob("*.json"))
+    return names + sorted(f"controllers/{path.name}" for path in (run / "controllers").glob("*.json")
+                          if not path.stem.endswith(f"-{REFERENCE}"))
 
 
 @pytest.mark.parametrize("name", list(RUNS))

@@ -12,6 +12,7 @@ One module per part; each imports only the parts above it in this list:
 ``state``       NEAT's state as JSON for checkpoints (no pickle)
 ``export``      exported controllers back as policies
 ``optimizer``   ``NeatOptimizer``: ask/tell, the genetic-distance regulariser, checkpoints, export
+``graph``       an exported genome as a drawing shows it, against a reference, by the regulariser's measure
 """
 from __future__ import annotations
 

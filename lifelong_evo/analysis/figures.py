@@ -18,11 +18,13 @@ configuration apart from the others plotted (``runs.config_differences``, e.g. `
 ``<prefix>-lifespans[-seed<S>].png``  NEAT: each species' life (birth to extinction) and size,
                                  from ``species.csv`` (generation, species_id, size); one per seed
 ``<prefix>-network-task<i>-<task>[-seed<S>].png``  per task end, its top controller against the
-                                 regulariser's reference (``lifelong_evo.networks``): NEAT's
+                                 reference written beside it (``task<i>-<task>-reference.json``,
+                                 ``lifelong_evo.networks``, as the recording draws it): NEAT's
                                  network (inputs read, hidden nodes, outputs; enabled connections,
                                  red positive, blue negative, width by weight, dashed where the
-                                 reference lacks them) and its genetic distance; an ES's
-                                 per-layer distance to the reference; one per seed
+                                 reference lacks them) and what was measured (genetic distance,
+                                 or weight protection's sums); an ES's per-layer distance to the
+                                 reference; one per seed
 
 A group of several seeds is drawn as the mean over seeds with a shaded min-max band. Colours are
 the task colours. Without ``--out`` the figures go next to the runs they plot: into the deepest
@@ -36,6 +38,7 @@ from __future__ import annotations
 import itertools
 import os
 import re
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +50,7 @@ from envs import color_rgb, task_rgb
 from ..errors import UserError
 from ..metrics import CURRENT_LEVELS, current_curve
 from ..metrics_csv import retention_columns
-from ..networks import NetworkView, describe, task_end_views
+from ..networks import NetworkView, columns, describe, task_end_views
 from ..rundir import RunDir
 from ..runs import Run, config_differences, describe_config, group_runs, load_runs
 from ..schedule import distinct_tasks, schedule_of
@@ -284,24 +287,26 @@ def figure_lifespans(run: Run, rows: list[tuple[int, int, int]] | None, path: Pa
 
 
 def figure_network(view: NetworkView, path: Path, label: str) -> Path:
-    """A task end's top controller (``networks.NetworkView``): NEAT's network in columns by depth,
-    or an MLP's distance to its reference per layer (without a reference: its parameters per layer)."""
+    """A task end's top controller (``networks.NetworkView``): NEAT's network in columns by depth
+    (``networks.columns``), or an MLP's distance to its reference per layer (without a reference:
+    its parameters per layer)."""
     import matplotlib.pyplot as plt
 
+    network = view.network
     if view.is_neat:
         fig, ax = plt.subplots(figsize=(9, 7), constrained_layout=True)
-        columns: dict[int, list[int]] = {}
-        for node in view.nodes:
-            columns.setdefault(node.depth, []).append(node.key)
-        where = {key: (depth, (len(keys) - 1) / 2 - row) for depth, keys in columns.items()
+        stacked: dict[int, list[int]] = {}
+        for key, column in columns(network).items():
+            stacked.setdefault(column, []).append(key)
+        where = {key: (column, (len(keys) - 1) / 2 - row) for column, keys in stacked.items()
                  for row, key in enumerate(keys)}
-        biggest = max((abs(e.weight) for e in view.edges), default=1.0) or 1.0
-        for edge in view.edges:
+        biggest = max((abs(e.weight) for e in network.connections), default=1.0) or 1.0
+        for edge in network.connections:
             (x0, y0), (x1, y1) = where[edge.source], where[edge.target]
             ax.plot([x0, x1], [y0, y1], color="tab:red" if edge.weight > 0 else "tab:blue",
                     linewidth=0.3 + 2.5 * abs(edge.weight) / biggest, linestyle="--" if edge.new else "-", alpha=0.6)
         for role, color in (("input", "0.6"), ("hidden", "#f0c850"), ("output", "#5aaaf9")):
-            keys = [node.key for node in view.nodes if node.role == role]
+            keys = [key for key, kind in network.nodes if kind == role]
             ax.scatter([where[k][0] for k in keys], [where[k][1] for k in keys], s=60, color=color,
                        edgecolor="black", zorder=3, label=f"{role} ({len(keys)})")
             for key in keys:
@@ -310,16 +315,16 @@ def figure_network(view: NetworkView, path: Path, label: str) -> Path:
         ax.legend(fontsize=8, loc="lower right")
     else:
         fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
-        sizes = view.layer_sizes
+        sizes = network.layer_sizes
         layers = [f"{a} -> {b}" for a, b in zip(sizes, sizes[1:])]
-        if view.layer_distances:
-            ax.bar(layers, view.layer_distances, color="tab:gray")
+        if network.layer_distances:
+            ax.bar(layers, network.layer_distances, color="tab:gray")
             ax.set_ylabel(f"Euclidean distance to {view.reference}")
         else:
             ax.bar(layers, [(a + 1) * b for a, b in zip(sizes, sizes[1:])], color="tab:gray")
-            ax.set_ylabel("parameters (no reference)")
+            ax.set_ylabel("parameters (reference unknown)")
         ax.set_xlabel("layer (inputs -> outputs)")
-    ax.set_title(f"{label}\n{describe(view)}", fontsize=9)
+    ax.set_title(f"{label}\n{textwrap.fill(describe(view), 120, break_on_hyphens=False)}", fontsize=9)
     return save(fig, path)
 
 
@@ -373,7 +378,8 @@ def plot_runs(paths, out: str | Path | None = None) -> list[Path]:
     target = Path(out) if out is not None else Path(os.path.commonpath([r.path.resolve() for r in runs]))
     species = {run.path: run.species_rows() for run in runs}  # read and checked before anything is drawn
     networks = {run.path: task_end_views(run.config, [phase.name for phase in schedule_of(run.config)],
-                                         RunDir(run.path).read_controllers()) for run in runs}
+                                         RunDir(run.path).read_controllers(), RunDir(run.path).controllers)
+                for run in runs}
     check_writable(target)
     configs = [group[0].config for group in groups]
     written = []

@@ -12,14 +12,16 @@ What is recorded (application id ``lifelong_evo``, recording id ``lifelong_evo/<
   ``curves/extra/<name>``                              the optimiser's extra scalars (e.g. ES sigma)
   ``log``                                              a text entry at each drift and task end
   ``network/graph``, ``network/summary``               at each task end, the top individual's network
-                                                       against its reference (``lifelong_evo.networks``):
+                                                       against the reference written beside it
+                                                       (``lifelong_evo.networks``; as ``plot`` draws it):
                                                        NEAT's nodes and enabled connections (a graph
                                                        view; the weights as ``weight`` values beside
                                                        the edges, connections the reference lacks as
                                                        ``new``); an MLP's layer sizes and per-layer
                                                        distance (``network/layer_distance``, a bar
-                                                       chart); the summary as markdown, with every
-                                                       weight or distance. The latest task end shows.
+                                                       chart); the summary as markdown: what was
+                                                       measured, the regulariser, every weight or
+                                                       distance. The latest task end shows.
   (a NaN point at a drift ends the line of each series that pauses there)
 ``step`` timeline, episodes of each task end's top individual on every task seen so far, under
 ``episodes/gen<G>_<phase task>/on_<task>/``: ``arena`` and ``drop_zone`` (static outlines; the
@@ -60,7 +62,7 @@ from envs import COLOR_RGB, color_rgb, task_rgb
 from ..episodes import Episode
 from ..errors import UserError
 from ..metrics import GenerationRecord
-from ..networks import NetworkView, describe
+from ..networks import NetworkView, columns, describe
 from ..recording import Recorder
 from ..schedule import distinct_tasks
 
@@ -302,28 +304,32 @@ class RerunRecorder(Recorder):
         stream = self.stream
         stream.set_time("generation", sequence=generation)
         lines = [f"## {describe(view)}", ""]
+        network = view.network
         if view.is_neat:
+            column = columns(network)
             rows: dict[int, int] = {}
             positions = []
-            for node in view.nodes:  # columns by depth, nodes stacked within a column
-                positions.append((150.0 * node.depth, 40.0 * rows.get(node.depth, 0)))
-                rows[node.depth] = rows.get(node.depth, 0) + 1
+            for key, _ in network.nodes:  # nodes stacked within their column
+                positions.append((150.0 * column[key], 40.0 * rows.get(column[key], 0)))
+                rows[column[key]] = rows.get(column[key], 0) + 1
             stream.log("network/graph", rr.GraphNodes(
-                [str(node.key) for node in view.nodes], positions=positions,
-                colors=[NODE_RGB[node.role] for node in view.nodes],
-                labels=[f"{node.role} {node.key}" for node in view.nodes]))
-            stream.log("network/graph", rr.GraphEdges([(str(e.source), str(e.target)) for e in view.edges],
+                [str(key) for key, _ in network.nodes], positions=positions,
+                colors=[NODE_RGB[role] for _, role in network.nodes],
+                labels=[f"{role} {key}" for key, role in network.nodes]))
+            links = network.connections
+            stream.log("network/graph", rr.GraphEdges([(str(e.source), str(e.target)) for e in links],
                                                       graph_type="directed"),
-                       rr.AnyValues(weight=[e.weight for e in view.edges], new=[e.new for e in view.edges]))
+                       rr.AnyValues(weight=[e.weight for e in links], new=[e.new for e in links]))
             lines += ["| from | to | weight | new |", "|---|---|---|---|"]
-            lines += [f"| {e.source} | {e.target} | {e.weight:.4g} | {'yes' if e.new else ''} |" for e in view.edges]
+            lines += [f"| {e.source} | {e.target} | {e.weight:.4g} | {'yes' if e.new else ''} |" for e in links]
         else:
-            if view.layer_distances:
-                stream.log("network/layer_distance", rr.BarChart(np.array(view.layer_distances, dtype=np.float64)))
+            sizes = network.layer_sizes
+            if network.layer_distances:
+                stream.log("network/layer_distance", rr.BarChart(np.array(network.layer_distances, dtype=np.float64)))
             lines += ["| layer | size | distance |", "|---|---|---|"]
-            distances = view.layer_distances or [None] * (len(view.layer_sizes) - 1)
+            distances = network.layer_distances or [None] * (len(sizes) - 1)
             lines += [f"| {i + 1} | {a} -> {b} | {'' if d is None else f'{d:.4g}'} |"
-                      for i, (a, b, d) in enumerate(zip(view.layer_sizes, view.layer_sizes[1:], distances))]
+                      for i, (a, b, d) in enumerate(zip(sizes, sizes[1:], distances))]
         stream.log("network/summary", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN))
 
     def log_episode_at(self, path: str, episode: Episode, generation: int | None = None) -> None:
