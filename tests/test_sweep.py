@@ -501,6 +501,10 @@ def test_share_first_task_takes_a_first_task_over_from_another_regulariser(tmp_p
     monkeypatch.setattr(ray_cluster, "run_jobs", in_turn)
     grid = ["sweep", "--algo", "neat", "--regulariser", "gd,wp", "--reg", "2", "--schedule", "red:2,green:2", *SMOKE,
             "--held-out-episodes", "1", "--out", str(tmp_path)]
+    # with lambda 0 among them, the fine-tuning trials first, whatever their regulariser
+    assert main([*grid[:6], "2,0", *grid[7:], "--name", "order", "--share-first-task", "--dry-run"]) == 0
+    assert [line.split()[-1] for line in capsys.readouterr().out.splitlines() if line.startswith("would run")] == \
+        ["gd-reg0", "wp-reg0", "gd-reg2", "wp-reg2"]
     assert main([*grid, "--name", "shared", "--share-first-task"]) == 0
     trials = _trials(tmp_path / "shared")
     assert [trials[name]["first_task_from"] for name in ("gd", "wp")] == ["", str((tmp_path / "shared/gd").resolve())]
