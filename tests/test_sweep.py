@@ -454,6 +454,14 @@ def test_share_first_task_runs_each_pair_in_turn_with_the_numbers_of_separate_ru
     # run again: finished trials are skipped, and trials.csv still says where each first task came from
     assert main([*grid, "--name", "shared", "--share-first-task"]) == 0
     assert _trials(tmp_path / "shared") == trials
+    # a trial stopped after taking over its first task resumes and still says where it came from
+    resumed = tmp_path / "shared" / "reg2-seed5"
+    (resumed / "summary.json").unlink()
+    for later in sorted(resumed.glob("checkpoints/generation-*.pt"))[1:]:
+        later.unlink()
+    assert main([*grid, "--name", "shared", "--share-first-task"]) == 0
+    assert "resume  reg2-seed5" in "".join(capsys.readouterr())
+    assert _trials(tmp_path / "shared")["reg2-seed5"]["first_task_from"] == trials["reg2-seed5"]["first_task_from"]
 
 
 @pytest.mark.parametrize("order", ["sources-last", "sources-first"])

@@ -205,8 +205,9 @@ def run_trial(config_values: dict[str, Any], path: str, overwrite: bool, memory_
         others = [s for s in first_task_sources if not RunDir(s).is_same_directory(run_dir)]
         source = first_task_source(RunConfig.from_dict(config_values), others, outdated_sources) if new else None
         summary = loop.run_alone(trial_run(config_values, path, overwrite, source))
+        # the summary's, which a trial resumed after taking over its first task still names
         return {"status": "done", "error": "", "wall_time_s": summary[SummaryLayout.WALL_TIME],
-                "first_task_from": "" if source is None else str(source.path)}
+                "first_task_from": summary.get(SummaryLayout.FIRST_TASK_FROM, "")}
     except Exception as error:  # noqa: BLE001 - the driver records it and goes on
         return {"status": "failed", "error": one_line(error), "wall_time_s": time.monotonic() - started}
 
