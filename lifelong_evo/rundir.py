@@ -71,7 +71,9 @@ def _regulariser_option(algo: str, key: str, regulariser: str | None = None, cho
     ``chosen_only``, only some regularisers read it (``Optimizer.options_used_by``); with
     ``regulariser``: only those that ``regulariser`` does not read, so that a run stated with
     ``regulariser`` has it from there."""
-    optimizer = REGISTRY[algo]
+    optimizer = REGISTRY.get(algo)
+    if optimizer is None:  # an optimiser this process does not know: validating the run says so
+        return False
     if any(key in options for options in optimizer.regularisers.values()):
         return True
     users = optimizer.options_used_by.get(key)
