@@ -37,8 +37,6 @@ from dataclasses import replace
 from typing import Callable
 
 import torch
-import torch._dynamo
-from torch._inductor.runtime.cache_dir_utils import default_cache_dir
 
 from .config import ConfigError
 from .sensing import batch_first
@@ -87,6 +85,10 @@ def compile_cache_dir() -> str:
     make processes that compile at once safe (each build runs under a lock on its key). A folder
     chosen here and inherited through ``TORCHINDUCTOR_CACHE_DIR`` (by a sweep's workers, say)
     is replaced, not nested: a child under another dispatch gets its own sibling folder."""
+    # imported here, as torch._dynamo through torch's lazy attribute: loading the compiler's
+    # modules costs a process more than a second that an eager run never needs
+    from torch._inductor.runtime.cache_dir_utils import default_cache_dir
+
     root = os.environ.get("TORCHINDUCTOR_CACHE_DIR") or default_cache_dir()
     root = os.path.abspath(root)
     if os.path.basename(root).startswith(CACHE_FOLDER_PREFIX):

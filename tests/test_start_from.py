@@ -11,7 +11,7 @@ from algorithms import REGISTRY
 from lifelong_evo.commands.cli import main
 from tests.test_nothing_lost import snapshot
 
-COMMON = ["--preset", "smoke", "--schedule", "red:3,green:3,red:2", "--env", "duration=100", "--checkpoint-every", "2",
+COMMON = ["--preset", "smoke", "--schedule", "red:3,green:3,red:2", "--env", "duration=60", "--checkpoint-every", "2",
           "--no-record", "--quiet"]
 
 

@@ -10,6 +10,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+import numpy as np
 from scipy import stats
 
 from lifelong_evo.commands.cli import main as cli_main
@@ -483,3 +484,22 @@ def test_the_optimism_of_a_lambda_chosen_per_seed_worked_by_hand():
                     ["lambda 11, every seed", "2", est([28.0, 29.0]), est([27.0, 22.0]), est([1.0, 7.0])]]
     del summaries["s2-l11"]["held_out"]  # a run without held-out scores: nothing to measure
     assert optimism_rows(selection, summaries) == []
+
+
+@pytest.mark.parametrize("n", [2, 5, 9, 12])
+def test_sign_flip_p_is_scipys_exact_test(n):
+    """The exact p-value is scipy's ``permutation_test`` (one sample, ``samples``, two-sided),
+    computed as one array: the same on spread values, on whole numbers with ties and zeros, on a
+    zero mean and where a flip gives the observed mean but for its rounding (the tolerance for
+    ties decides)."""
+    rng = np.random.default_rng(n)
+    cases = [rng.normal(0.3, 1.0, n), rng.integers(-3, 4, n).astype(float), np.zeros(n),
+             np.concatenate([[1.0], -np.ones(n - 1)]),
+             rng.normal(0, 1, n) * 1e-9 + 0.1,
+             # flipping -1.5, 1.0 and 0.5 keeps the mean in exact arithmetic, not in its rounding
+             np.concatenate([[-1.5, -1.3, -0.4, 0.5, 1.0, 2.7][:n], rng.normal(0.5, 1.0, max(0, n - 6))])]
+    for differences in cases:
+        scipys = stats.permutation_test((np.sort(differences),), lambda x, axis: np.mean(x, axis=axis),
+                                        permutation_type="samples", vectorized=True, n_resamples=np.inf,
+                                        alternative="two-sided")
+        assert sign_flip_p(differences) == (float(scipys.pvalue), True), differences
