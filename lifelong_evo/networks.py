@@ -113,7 +113,8 @@ def describe(view: NetworkView) -> str:
         shape = "layers " + " -> ".join(map(str, network.layer_sizes))
     if view.found:
         measured = ", ".join(f"{what} {value:.3g}" for what, value in network.measures)
-        lacks = f", which lacks {sum(link.new for link in network.connections)} of them" if view.is_neat else ""
+        new = sum(link.new for link in network.connections)
+        lacks = (f", which lacks {new} of them" if new else ", which has all of them") if view.is_neat else ""
         against = f"{measured} to {view.reference}{lacks}"
     else:
         against = (f"reference unknown (no {view.reference}: the regulariser had none at this task end, "

@@ -106,6 +106,19 @@ def test_the_line_names_what_was_measured_against_which_file_under_which_regular
         task_end_view(es, ["red", "green"], 1, {"task1-green-top": top}))
 
 
+def test_a_neat_line_counts_the_connections_its_reference_lacks():
+    optimizer = make_optimizer("neat", obs_dim=31, population_size=20, seed=4)
+    optimizer.ask()
+    top, other = optimizer.export(0), optimizer.export(1)
+    neat = {"algo": "neat", "reg": 11.0, "regulariser": "gd"}
+    theirs = {(c["in"], c["out"]) for c in other["genome"]["connections"] if c["enabled"]}
+    lacked = sum((c["in"], c["out"]) not in theirs for c in top["genome"]["connections"] if c["enabled"])
+    line = describe(task_end_view(neat, ["red"], 0, {"task0-red-top": top, "task0-red-reference": other}))
+    assert lacked > 0 and f"to task0-red-reference, which lacks {lacked} of them; regulariser gd" in line, line
+    line = describe(task_end_view(neat, ["red"], 0, {"task0-red-top": top, "task0-red-reference": top}))
+    assert "genetic distance 0 to task0-red-reference, which has all of them;" in line, line
+
+
 # ------------------------------------------------------------------ runs: the loop, the recording and plot
 
 
