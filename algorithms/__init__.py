@@ -34,7 +34,7 @@ def make_optimizer(name: str, *, obs_dim: int, population_size: int, seed: int,
         raise UnknownAlgorithmError(
             f"unknown algorithm {name!r}: choose one of {', '.join(REGISTRY)}") from None
     if reg and not cls.has_regularizer:
-        raise ValueError(f"algorithm {name!r} has no regulariser: drop --reg or use another algorithm")
+        raise ValueError(f"algorithm {name!r} has no regulariser: set reg to 0 or use another algorithm")
     return cls(obs_dim=obs_dim, population_size=population_size, seed=seed,
                reg=reg, device=device, **options)
 
