@@ -497,7 +497,10 @@ def test_sign_flip_p_is_scipys_exact_test(n):
              np.concatenate([[1.0], -np.ones(n - 1)]),
              rng.normal(0, 1, n) * 1e-9 + 0.1,
              # flipping -1.5, 1.0 and 0.5 keeps the mean in exact arithmetic, not in its rounding
-             np.concatenate([[-1.5, -1.3, -0.4, 0.5, 1.0, 2.7][:n], rng.normal(0.5, 1.0, max(0, n - 6))])]
+             np.concatenate([[-1.5, -1.3, -0.4, 0.5, 1.0, 2.7][:n], rng.normal(0.5, 1.0, max(0, n - 6))]),
+             # a mean of 0 in exact arithmetic, about 1e-16 in floats: the order of each sum decides
+             np.concatenate([[1.0, -2.7, -1.9, -0.2, -0.4, 0.2, 0.2, 3.8][:n], [0.5, -0.5] * max(0, (n - 8) // 2),
+                             [0.0] * ((n - 8) % 2 if n > 8 else 0)])]
     for differences in cases:
         scipys = stats.permutation_test((np.sort(differences),), lambda x, axis: np.mean(x, axis=axis),
                                         permutation_type="samples", vectorized=True, n_resamples=np.inf,

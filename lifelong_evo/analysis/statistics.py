@@ -130,10 +130,16 @@ def sign_flip_p(differences: Iterable[float]) -> tuple[float, bool]:
             n_resamples=RANDOM_SIGN_FLIPS, alternative="two-sided", random_state=np.random.default_rng(SIGN_FLIP_SEED))
         return float(result.pvalue), False
     # scipy's exact test builds its 2^n sign vectors as Python tuples, which made compare spend
-    # most of its time here; the same null distribution as one array, one row per sign vector
-    # (bit j of the row's number flips value j), and scipy's p-value with its tolerance for ties
+    # most of its time here; the same null distribution as one array, one entry per sign vector
+    # (bit j of the entry's number flips value j), and scipy's p-value with its tolerance for ties.
+    # Each null sum adds the values one by one in order, as scipy's mean over its strided batch
+    # does: numpy's pairwise sum rounds some of them otherwise, and where the observed mean is 0
+    # but for its rounding, the tolerance is too small to absorb that
     flips = (np.arange(2 ** data.size)[:, None] >> np.arange(data.size)) & 1
-    null = np.mean(np.where(flips == 1, -data, data), axis=-1)
+    null = np.zeros(2 ** data.size)
+    for j, value in enumerate(data):
+        null += np.where(flips[:, j] == 1, -value, value)
+    null /= data.size
     observed = np.mean(data)
     tie = abs(np.finfo(float).eps * 100 * observed)
     less = np.count_nonzero(null <= observed + tie) / null.size
