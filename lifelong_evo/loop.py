@@ -328,13 +328,14 @@ def _make_optimizer(config: RunConfig, env_config, seed: int):
 
 def _warn_native_elsewhere(run_dir: RunDir, before: dict[str, Any], here: dict[str, Any], generation: int) -> None:
     """Say, once, on stderr, that a native-arithmetic run continues on another kind of machine:
-    its numbers from ``generation`` on are this machine's, not those it would have had where it began."""
+    its numbers from ``generation`` on are this machine's, not those it would have had on the
+    kind it last ran on (``before``)."""
     def kind(described: dict[str, Any]) -> str:
         return ", ".join(str(described[name]) for name in ARITHMETIC_FIELDS if name in described)
     print(f"warning: {run_dir.path} computes with --numerics native, whose numbers follow the machine: from "
           f"generation {generation} it continues on {kind(here)}, not {kind(before)}, so its numbers from there "
-          "are this machine's (summary.json's machines name both); resume it on the machine kind it began on to "
-          "keep its trajectory", file=sys.stderr, flush=True)
+          f"are this machine's (summary.json's machines name both); resume it on {kind(before)} to keep its "
+          "trajectory", file=sys.stderr, flush=True)
 
 
 class _FunctionalReference:

@@ -26,7 +26,7 @@ import os
 import re
 import shutil
 import time
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -235,9 +235,11 @@ class RunDir:
         (``first_task_differences``).
 
         ``stated``: settings as a command gives them (some of ``RunConfig``'s fields, their values
-        typed or as text; ``env`` and ``algo_options`` key by key) or a whole configuration
-        (``RunConfig.to_dict()``, a sweep's trial). The statement is laid over the stored settings
-        and validated (ConfigError for a bad value); then every setting but the output settings is
+        typed or as text; ``env`` and ``algo_options`` key by key) or a whole configuration (every
+        field: ``RunConfig.to_dict()``, a sweep's trial, the run that takes over a first task). The
+        statement is laid over the stored settings, except a whole configuration's environment and
+        options, which are whole too (a key it leaves out is at its default, not at the stored
+        value), and validated (ConfigError for a bad value); then every setting but the output settings is
         compared, the environment and the optimiser's options resolved as config.json says the run
         resolved them, so a default stated in one and left out in the other is one setting. Where
         the optimiser differs, its options and regulariser are not compared: they are another
@@ -253,13 +255,15 @@ class RunDir:
         written = read_json(self.config)
         algo = stated.get("algo", stored.algo)
         same_algo = algo == stored.algo
-        keep_options = stored.algo_options if same_algo else {}  # another optimiser's options mean nothing
+        whole = {field_.name for field_ in fields(RunConfig)} <= set(stated)
+        # another optimiser's options mean nothing; a whole configuration states all of its own
+        keep_options = stored.algo_options if same_algo and not whole else {}
         regulariser = stated.get("regulariser", DEFAULT_REGULARISER)
         if same_algo and regulariser != DEFAULT_REGULARISER:  # the stated one's options, not the stored one's
             keep_options = {k: v for k, v in keep_options.items() if not _regulariser_option(algo, k, regulariser)}
         base = stored if same_algo else replace(stored, regulariser=DEFAULT_REGULARISER)  # nor its regulariser
         given = replace(base, **{k: v for k, v in stated.items() if k not in ("env", "algo_options")},
-                        env={**stored.env, **stated.get("env", {})},
+                        env={**({} if whole else stored.env), **stated.get("env", {})},
                         algo_options={**keep_options, **stated.get("algo_options", {})}).validate(machine=False)
         differences = []
         for name, value in RunConfig.outcome_settings(given.to_dict()).items():

@@ -458,6 +458,9 @@ def test_a_native_run_resumed_on_another_machine_kind_says_so(tmp_path, monkeypa
             assert len(warnings) == 1 and "--numerics native" in warnings[0], warnings
             changed = "Another CPU" if name == "other-kind" else elsewhere["vector_isa"]
             assert changed in warnings[0] and "generation " in warnings[0], warnings
+            # the advice names the kind the run last ran on (here, where the run began)
+            assert warnings[0].endswith(f"resume it on {here['cpu']}, {here['vector_isa']} to keep its trajectory"), \
+                warnings
         else:
             assert warnings == [], warnings
         assert len(json.loads((tmp_path / name / "summary.json").read_text())["machines"]) == 2

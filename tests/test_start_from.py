@@ -64,6 +64,9 @@ def test_a_run_started_from_another_regulariser_gives_its_own_numbers(tmp_path, 
     alone, started = _files(tmp_path / "alone"), _files(tmp_path / "started")
     assert json.loads(alone.pop("config.json")) == json.loads(started.pop("config.json"))
     assert alone == started
+    # the regulariser acted after the first task: the runs differ from the source there
+    metrics = [(tmp_path / name / "metrics.csv").read_text().splitlines() for name in ("source", "started")]
+    assert metrics[0][:4] == metrics[1][:4] and metrics[0][4:] != metrics[1][4:]
 
 
 @pytest.mark.parametrize("algo", ["neat", "sep-cmaes"])
@@ -103,6 +106,26 @@ def test_start_from_refuses_a_run_that_differs_in_more_than_lambda(tmp_path, cap
                  str(tmp_path / "source")]) == 2
     assert "keeps no checkpoint of its first task" in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize("algo, setting, says", [
+    ("neat", ["--option", "genetics=2.0"], "--option genetics='0.92' (stored: '2.0')"),
+    ("sep-cmaes", ["--option", "sigma=2"], "--option sigma=0.5 (stored: 2.0)"),
+    ("openai-es", ["--option", "reference=best"], "--option reference='centre' (stored: 'best')"),
+    ("sep-cmaes", ["--env", "n_boxes=10"], "--env n_boxes=20 (stored: 10)")])
+def test_start_from_refuses_a_source_with_a_setting_the_new_run_leaves_at_its_default(tmp_path, capsys, algo,
+                                                                                     setting, says):
+    """The source's options and environment were laid under the new run's, so a setting only the
+    source gave was never compared: a NEAT source under 2.0's genetics crashed the new run after
+    its directory was made, an ES source with another sigma gave other numbers without a word."""
+    assert main(["--algo", algo, *COMMON, *setting, "--out", str(tmp_path), "--name", "source"]) == 0
+    capsys.readouterr()
+    before = snapshot(tmp_path)
+    assert main(["--algo", algo, *COMMON, "--reg", "2", "--out", str(tmp_path), "--name", "new",
+                 "--start-from", str(tmp_path / "source")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and says in err, err
+    assert snapshot(tmp_path) == before
 
 
 def test_start_from_a_run_of_another_algo_names_only_the_algo(tmp_path, capsys):
