@@ -281,6 +281,20 @@ def test_an_option_added_since_a_run_was_written_is_its_default(tmp_path):
         "--regulariser 'wp' (stored: 'gd')", "--option lambda_2=0.5 (stored: 0.3)"]
 
 
+def test_a_whole_configuration_leaves_out_only_defaults(tmp_path):
+    """A whole configuration (every field: a sweep's trial, a run taking over a first task) states
+    its options and environment whole: a key the run stored and it leaves out is at its default,
+    a difference. Settings as a command states them (``--resume``) leave the stored ones be."""
+    run = RunDir(tmp_path / "run")
+    run.path.mkdir()
+    run.write_config(RunConfig(algo="sep-cmaes", generations=3, env={"n_agents": 4},
+                               algo_options={"sigma": 2.0}).validate(machine=False))
+    whole = RunConfig(algo="sep-cmaes", generations=3).validate(machine=False).to_dict()
+    assert run.setting_differences(whole) == ["--env n_agents=5 (stored: 4)", "--option sigma=0.5 (stored: 2.0)"]
+    assert run.setting_differences({k: v for k, v in whole.items() if k not in ("env", "algo_options")}) == []
+    assert run.setting_differences({"algo": "sep-cmaes", "generations": 3}) == []
+
+
 @pytest.mark.parametrize("stored, stated, says", [
     # the stored wp's options were kept under the stated gd: the refusal named --option penalty=wp, never given
     (dict(regulariser="wp", algo_options={"lambda_2": 0.003}), {"regulariser": "gd"},
