@@ -161,7 +161,7 @@ def _used_by():
                 yield pytest.param(algo, name, regulariser, regulariser in users, id=f"{algo}-{name}-{regulariser}")
 
 
-@pytest.mark.parametrize("algo, name, regulariser, reads", _used_by())
+@pytest.mark.parametrize("algo, name, regulariser, reads", list(_used_by()))
 def test_an_option_only_some_regularisers_read_changes_nothing_under_the_others(algo, name, regulariser, reads):
     """``options_used_by``, why an option is refused under another regulariser: played past two task
     ends with two values of it (with fitness drawn from one stream), the optimiser under a regulariser
