@@ -169,6 +169,11 @@ class Optimizer(ABC):
     two values of each declared one, for every registered optimiser."""
 
     @classmethod
+    def choosing_options(cls) -> frozenset[str]:
+        """The options that choose among ``regularisers`` (NEAT's ``penalty``, an ES's ``importance``)."""
+        return frozenset(key for options in cls.regularisers.values() for key in options)
+
+    @classmethod
     def check_population(cls, population_size: int, options: OptimizerOptions) -> None:
         """Raise ValueError, saying the smallest size it can evolve, unless this optimiser can
         evolve ``population_size`` controllers with ``options`` (checked before anything is

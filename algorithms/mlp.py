@@ -134,7 +134,6 @@ def check_export(exported: dict, obs_dim: int | None = None) -> None:
         raise ExportError(f"parameters has {len(params)} numbers, and layer_sizes {sizes} need {n_parameters(sizes)}")
 
 
-
 def mlp_network(exported: dict, reference: dict | None = None) -> ControllerNetwork:
     """The exported MLP as a drawing shows it (``algorithms.network_from_export``): its layer sizes
     and, with a ``reference`` MLP, each layer's Euclidean distance (weights and biases) to the

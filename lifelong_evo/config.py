@@ -339,9 +339,8 @@ def resolve_regulariser(algo: str, regulariser: str, algo_options: dict[str, Any
         applies = f"applies {', '.join(names)}" if names else "names no regulariser: drop --regulariser"
         raise ConfigError(f"--regulariser {regulariser!r}: {algo} {applies}")
     else:
-        choosing = {key for options in names.values() for key in options}
         clash = [f"--option {k}={v}" for k, v in algo_options.items()
-                 if k in choosing and names[regulariser].get(k) != v]
+                 if k in optimizer.choosing_options() and names[regulariser].get(k) != v]
         if clash:
             raise ConfigError(f"--regulariser {regulariser!r} and {' and '.join(clash)} choose different "
                               "regularisers: give one of them")

@@ -74,7 +74,7 @@ def _regulariser_option(algo: str, key: str, regulariser: str | None = None, cho
     optimizer = REGISTRY.get(algo)
     if optimizer is None:  # an optimiser this process does not know: validating the run says so
         return False
-    if any(key in options for options in optimizer.regularisers.values()):
+    if key in optimizer.choosing_options():
         return True
     users = optimizer.options_used_by.get(key)
     return not chosen_only and users is not None and (regulariser is None or regulariser not in users)
