@@ -50,7 +50,7 @@ from .evaluate import BesideReference, Evaluation, evaluate, evaluate_together, 
 from .held_out import score_controllers
 from .metrics import (INITIAL, REFERENCE, FitnessStats, GenerationRecord, Retention, controller_key, retention,
                       stability_gap, summarise)
-from .metrics_csv import GenerationLog, MetricsLayout, read_metrics
+from .metrics_csv import GenerationLog, MetricsLayout, check_continuable, logged_generations, read_metrics, spans
 from .networks import task_end_view
 from .progress import Progress
 from .provenance import ARITHMETIC_FIELDS, machine, same_native_arithmetic
@@ -165,10 +165,12 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
     optimizer = _make_optimizer(config, env_config, config.seed)
     centre = optimizer.centre_index  # ES: the search distribution's centre
     generator = torch.Generator().manual_seed(config.seed)
+    layout = MetricsLayout(tuple(t.name for t in tasks), species=config.algo == "neat", centre=centre is not None,
+                           diagnostics=optimizer.diagnostics)
     # one writer per run directory: its lock is taken before anything is written and held to the finally below
     if resume:
         lock = run_dir.lock()
-        state = _resume(config, run_dir, optimizer, generator)
+        state = _resume(config, run_dir, optimizer, generator, layout)
     else:
         state = LoopState()
         source = _first_task_of(start_from, config, run_dir) if start_from is not None else None
@@ -184,8 +186,6 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
         if state.machines and config.numerics == "native" and not same_native_arithmetic(state.machines[-1], here):
             _warn_native_elsewhere(run_dir, state.machines[-1], here, state.generation)
         state.machines.append({"from_generation": state.generation, **here})
-    layout = MetricsLayout(tuple(t.name for t in tasks), species=config.algo == "neat", centre=centre is not None,
-                           diagnostics=optimizer.diagnostics)
     log = GenerationLog(run_dir.path, layout, resumed_at=state.generation if resume or start_from else None)
     recorder = recorder or Recorder()
     display = Progress(sum(p.generations for p in phases), state.generation, mode=progress)
@@ -487,6 +487,19 @@ def _first_task_of(source: RunDir, config: RunConfig, run_dir: RunDir) -> tuple[
     and refused where damaged, before the new run directory is made."""
     check_start_from(config, run_dir, source)
     payload = checkpoint.load(source.first_task_end)
+    if RunConfig.outcome_settings(payload.get("config") or {}) != RunConfig.outcome_settings(
+            source.read_config().to_dict()):
+        raise ResumeError(f"--start-from {source.path}: its {source.first_task_end.name} belongs to another "
+                          "configuration than its config.json: restore the file from a copy of that run, or start "
+                          "this run without --start-from")
+    generations = payload["loop"]["generation"]
+    for log in (source.metrics, source.species) if config.algo == "neat" else (source.metrics,):
+        held = logged_generations(log)
+        missing = [g for g in range(generations) if g not in held]
+        if missing:
+            raise RunDirError(f"--start-from {source.path}: its {log.name} has no rows for generation(s) "
+                              f"{spans(missing)}, which its first task covers: restore it from a copy of that run, "
+                              "or start this run without --start-from")
     first = config.phases()[0].name
     controllers = {name: exported for name, exported in source.read_controllers().items()
                    if name.startswith((f"{INITIAL}-", f"task0-{first}-"))}
@@ -532,29 +545,37 @@ def _load_state(payload: dict[str, Any], optimizer, generator) -> LoopState:
                      archive=loop.get("archive", {}))
 
 
-def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator) -> LoopState:
+def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator, layout: MetricsLayout) -> LoopState:
+    """The state ``run_dir``'s newest checkpoint holds, loaded; refused (ResumeError, RunDirError)
+    where config is not the run's own, the checkpoint is damaged or another configuration's, or
+    the logs cannot be continued from it without losing a row (``check_continuable``)."""
     run_dir.continuation(config.to_dict())  # ResumeError unless config is the run's own
     found = run_dir.checkpoint_files()
+    first_checkpoint = min(config.checkpoint_every, config.phases()[0].generations)
     if not found:
+        check_continuable(run_dir.path, layout, 0, first_checkpoint)
         print(f"note: no checkpoint in {run_dir.checkpoints}: resuming from generation 0", file=sys.stderr)
         return LoopState()
     path = found[-1]
     try:
         payload = checkpoint.load(path)
     except checkpoint.CorruptCheckpointError as error:
-        raise checkpoint.CorruptCheckpointError(f"{error}; {_damaged_checkpoint_advice(found)}") from None
+        raise checkpoint.CorruptCheckpointError(f"{error}; {_damaged_checkpoint_advice(found, layout)}") from None
     if "pickle" in (payload.get("optimizer") or {}):
         raise checkpoint.older_version_error(path)
     if RunConfig.outcome_settings(payload.get("config") or {}) != RunConfig.outcome_settings(config.to_dict()):
         raise ResumeError(f"checkpoint {path} belongs to another configuration: delete it or start a new run")
-    return _load_state(payload, optimizer, generator)
+    state = _load_state(payload, optimizer, generator)
+    check_continuable(run_dir.path, layout, state.generation, first_checkpoint)
+    return state
 
 
-def _damaged_checkpoint_advice(found: list[Path]) -> str:
+def _damaged_checkpoint_advice(found: list[Path], layout: MetricsLayout) -> str:
     """What to do when the newest of the checkpoints ``found`` (oldest first) is damaged: delete
     it, and any damaged one before it, to resume from the newest that can be read; with none
-    readable, delete them all to resume from generation 0 (first-task-end.pt is no checkpoint
-    ``--resume`` reads, and is kept for the runs that start from it)."""
+    readable, delete them all and the logs (``layout.files``, which no checkpoint rebuilds now)
+    to resume from generation 0 (first-task-end.pt is no checkpoint ``--resume`` reads, and is
+    kept for the runs that start from it)."""
     *earlier, newest = found
     damaged = [newest]
     for candidate in reversed(earlier):
@@ -568,12 +589,12 @@ def _damaged_checkpoint_advice(found: list[Path]) -> str:
         return (f"{_names(damaged[:-1])} before it cannot be read either: delete {_names(damaged)} to resume from "
                 f"{candidate.name}")
     if len(damaged) == 1:
-        return "no earlier checkpoint is left: delete it to resume from generation 0"
+        return f"no earlier checkpoint is left: delete {_names(['it', *layout.files])} to resume from generation 0"
     return (f"{_names(damaged[:-1])} before it cannot be read either, so no checkpoint is left: delete "
-            f"{_names(damaged)}, and --resume starts again from generation 0")
+            f"{_names([*damaged, *layout.files])}, and --resume starts again from generation 0")
 
 
-def _names(paths: list[Path]) -> str:
-    """``a.pt``, ``a.pt and b.pt``, ``a.pt, b.pt and c.pt``."""
-    names = [path.name for path in paths]
+def _names(paths: list[Path | str]) -> str:
+    """``a.pt``, ``a.pt and b.pt``, ``a.pt, b.pt and c.pt`` (of a path, its name)."""
+    names = [getattr(path, "name", path) for path in paths]
     return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"

@@ -62,6 +62,11 @@ class MetricsLayout:
         return RETENTION_LEVELS if self.centre else RETENTION_LEVELS[:2]
 
     @property
+    def files(self) -> tuple[str, ...]:
+        """The logs it writes: metrics.csv, and species.csv where it has species."""
+        return (METRICS_FILE, SPECIES_FILE) if self.species else (METRICS_FILE,)
+
+    @property
     def columns(self) -> list[str]:
         columns = ["task", *FIXED_COLUMNS, *STATISTICS, *(f"reg_{name}" for name in STATISTICS), "top"]
         if self.species:
@@ -144,6 +149,61 @@ class GenerationLog:
         self.metrics.close()
         if self.species is not None:
             self.species.close()
+
+
+def check_continuable(folder: Path, layout: MetricsLayout, generations: int, first_checkpoint: int) -> None:
+    """RunDirError unless the logs of the run directory ``folder`` can be continued after
+    ``generations`` generations, its newest checkpoint's (0: it has none), without losing a row:
+    each log has this run's header and a row for every one of those generations, and a run with no
+    checkpoint has no row past ``first_checkpoint``, the generation its first checkpoint follows
+    (it had checkpoints and lost them; starting again would drop rows no checkpoint can rebuild
+    until the run gets there again)."""
+    logs = [(folder / METRICS_FILE, layout.columns)]
+    if layout.species:
+        logs.append((folder / SPECIES_FILE, list(SPECIES_COLUMNS)))
+    again = f"delete checkpoints/ and {' and '.join(layout.files)} for --resume to start it again from generation 0"
+    for path, columns in logs:
+        if not path.is_file():
+            if generations:
+                raise RunDirError(f"{path} is missing, though the newest checkpoint continues the run after "
+                                  f"{generations} generations: restore it from a copy of the run, or {again}")
+            continue
+        held = logged_generations(path)
+        with open(path, newline="") as handle:
+            header = next(csv.reader(handle), [])
+        if header != columns:
+            differences = [f"it lacks {', '.join(c for c in columns if c not in header)}" if set(columns) - set(header)
+                           else "", f"it has {', '.join(c for c in header if c not in columns)}"
+                           if set(header) - set(columns) else ""]
+            said = "; ".join(d for d in differences if d) or "its columns are in another order"
+            raise RunDirError(f"{path}'s header is not the one this run writes ({said}): restore it from a copy "
+                              f"of the run, or {again}")
+        missing = [g for g in range(generations) if g not in held]
+        if missing:
+            raise RunDirError(f"{path} has no rows for generation(s) {spans(missing)}, which the newest checkpoint "
+                              f"(after {generations} generations) follows: restore it from a copy of the run, or "
+                              f"{again}")
+        if not generations and held and max(held) >= first_checkpoint:
+            raise RunDirError(f"{folder} has no checkpoint, though its {path.name} holds rows up to generation "
+                              f"{max(held)} and the run wrote one after generation {first_checkpoint - 1}: restore "
+                              f"checkpoints/ from a copy of the run, or delete {' and '.join(layout.files)} for --resume to start "
+                              "it again from generation 0")
+
+
+def logged_generations(path: Path) -> set[int]:
+    """The generations a metrics.csv or species.csv has rows for (none: no file), read checked."""
+    return {int(row["generation"]) for row in read_metrics(path, required=("generation",))} if path.is_file() else set()
+
+
+def spans(numbers: list[int]) -> str:
+    """Sorted whole numbers as ranges: ``8-13, 20``."""
+    spans: list[list[int]] = []
+    for n in numbers:
+        if spans and n == spans[-1][1] + 1:
+            spans[-1][1] = n
+        else:
+            spans.append([n, n])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in spans)
 
 
 def read_metrics(path: Path, required: tuple[str, ...] = ("task", *FIXED_COLUMNS)) -> list[dict[str, str]]:

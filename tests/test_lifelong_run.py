@@ -283,8 +283,10 @@ def test_corrupt_checkpoint_names_the_earlier_one(smoke_runs, tmp_path, capsys):
 
 
 def test_truncated_last_checkpoint_then_none(smoke_runs, tmp_path, capsys):
-    """The only checkpoint cut short: refused, with the advice to delete it; with none left,
-    --resume says it starts from generation 0, and does, to the same numbers."""
+    """The only checkpoint cut short: refused, with the advice to delete it and the logs; with the
+    checkpoint alone deleted, --resume refuses to drop rows no checkpoint rebuilds, and changes
+    nothing; with the logs deleted too, it says it starts from generation 0, and does, to the same
+    numbers."""
     run = _copy(smoke_runs, tmp_path)
     earlier, latest = sorted(run.glob("checkpoints/generation-*.pt"))
     latest.unlink()
@@ -292,8 +294,17 @@ def test_truncated_last_checkpoint_then_none(smoke_runs, tmp_path, capsys):
     assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 2
     assert capsys.readouterr().err == (
         f"error: checkpoint {earlier} is corrupt or truncated (its checksum does not match); "
-        "no earlier checkpoint is left: delete it to resume from generation 0\n")
+        "no earlier checkpoint is left: delete it, metrics.csv and species.csv to resume from generation 0\n")
     earlier.unlink()
+    before = snapshot(run)
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 2
+    assert capsys.readouterr().err == (
+        f"error: {run} has no checkpoint, though its metrics.csv holds rows up to generation 8 and the run wrote "
+        "one after generation 1: restore checkpoints/ from a copy of the run, or delete metrics.csv and "
+        "species.csv for --resume to start it again from generation 0\n")
+    assert snapshot(run) == before
+    (run / "metrics.csv").unlink()
+    (run / "species.csv").unlink()
     assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 0
     err = capsys.readouterr().err
     assert err == f"note: no checkpoint in {run / 'checkpoints'}: resuming from generation 0\n"
@@ -321,14 +332,69 @@ def test_every_checkpoint_damaged_says_none_is_left(smoke_runs, tmp_path, capsys
     assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 2
     assert capsys.readouterr().err == (
         f"error: checkpoint {latest} is corrupt or truncated (its checksum does not match); {earlier.name} before "
-        f"it cannot be read either, so no checkpoint is left: delete {earlier.name} and {latest.name}, and --resume "
-        "starts again from generation 0\n")
+        f"it cannot be read either, so no checkpoint is left: delete {earlier.name}, {latest.name}, metrics.csv and "
+        "species.csv, and --resume starts again from generation 0\n")
     assert snapshot(run) == before
-    earlier.unlink()
-    latest.unlink()
+    for path in (earlier, latest, run / "metrics.csv", run / "species.csv"):
+        path.unlink()
     assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 0
     assert capsys.readouterr().err == f"note: no checkpoint in {run / 'checkpoints'}: resuming from generation 0\n"
     _same_numbers(run, smoke_runs / "neat")
+
+
+def test_a_run_killed_before_its_first_checkpoint_resumes_from_generation_0(smoke_runs, tmp_path, capsys):
+    """No checkpoint yet and rows only of the generations before the first one (a kill in
+    between): --resume starts again from generation 0, to the same numbers."""
+    run = _copy(smoke_runs, tmp_path)
+    shutil.rmtree(run / "checkpoints")
+    for log in ("metrics.csv", "species.csv"):
+        kept = [line for line in (run / log).read_text().splitlines(keepends=True)
+                if line.split(",")[0 if log == "species.csv" else 2] in ("generation", "0", "1")]
+        (run / log).write_text("".join(kept))
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 0
+    assert capsys.readouterr().err == f"note: no checkpoint in {run / 'checkpoints'}: resuming from generation 0\n"
+    _same_numbers(run, smoke_runs / "neat")
+
+
+def _cut_rows(path: Path, keep: int) -> None:
+    """Keep ``path``'s header and its rows of the first ``keep`` generations, and half of the next
+    row (a torn write)."""
+    header, *rows = path.read_text().splitlines(keepends=True)
+    at = header.split(",").index("generation")
+    kept = [row for row in rows if int(row.split(",")[at]) < keep]
+    path.write_text(header + "".join(kept) + rows[len(kept)][:len(rows[len(kept)]) // 2])
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda run: _cut_rows(run / "metrics.csv", 3),
+     "error: {run}/metrics.csv has no rows for generation(s) 3-7, which the newest checkpoint (after 8 generations) "
+     "follows: restore it from a copy of the run, or delete checkpoints/ and metrics.csv and species.csv for "
+     "--resume to start it again from generation 0\n"),
+    (lambda run: (run / "metrics.csv").unlink(),
+     "error: {run}/metrics.csv is missing, though the newest checkpoint continues the run after 8 generations: "
+     "restore it from a copy of the run, or delete checkpoints/ and metrics.csv and species.csv for --resume to "
+     "start it again from generation 0\n"),
+    (lambda run: _cut_rows(run / "species.csv", 5),
+     "error: {run}/species.csv has no rows for generation(s) 5-7, which the newest checkpoint (after 8 generations) "
+     "follows: restore it from a copy of the run, or delete checkpoints/ and metrics.csv and species.csv for "
+     "--resume to start it again from generation 0\n"),
+    (lambda run: (run / "metrics.csv").write_text(
+        (run / "metrics.csv").read_text().replace(",retention_pop_red,", ",retention_pop_red_old,", 1)),
+     "error: {run}/metrics.csv's header is not the one this run writes (it lacks retention_pop_red; it has "
+     "retention_pop_red_old): restore it from a copy of the run, or delete checkpoints/ and metrics.csv and "
+     "species.csv for --resume to start it again from generation 0\n"),
+], ids=["metrics-cut-before-the-checkpoint", "metrics-missing", "species-cut", "metrics-of-another-layout"])
+def test_resume_refuses_logs_the_checkpoint_does_not_continue(smoke_runs, tmp_path, capsys, damage, message):
+    """A log that lacks rows before the newest checkpoint (a torn copy, a power loss), is missing,
+    or has another run's columns: --resume refuses in one line and changes nothing (it went on
+    with a gap in the generations, or rewrote the file to this run's columns, dropping some)."""
+    run = _copy(smoke_runs, tmp_path)
+    (run / "checkpoints" / "generation-000009.pt").unlink()  # the newest left: after 8 generations
+    damage(run)
+    before = snapshot(run)
+    assert main(["--resume", "--out", str(tmp_path), "--name", "copy", "--no-record", "--quiet"]) == 2
+    assert capsys.readouterr().err == message.format(run=run)
+    assert snapshot(run) == before
 
 
 @pytest.mark.parametrize("signed", [True, False])

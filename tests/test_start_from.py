@@ -167,20 +167,33 @@ def test_a_from_scratch_run_stopped_right_after_taking_over_a_first_task_resumes
     assert alone == resumed
 
 
-@pytest.mark.parametrize("damage", ["damaged", "missing"])
-def test_a_damaged_first_task_controller_is_refused_before_the_new_run_is_made(tmp_path, capsys, damage):
-    """The controllers a run takes over are read, and refused, before its run directory exists
-    (they were read after it was made, leaving it half-made)."""
+@pytest.mark.parametrize("damage, names", [
+    ("damaged", "task0-red-top.json"), ("missing", "task0-red-top.json"),
+    ("another-run's-first-task-end", "first-task-end.pt belongs to another configuration"),
+    ("metrics-cut", "metrics.csv has no rows for generation(s) 2"),
+])
+def test_a_damaged_source_is_refused_before_the_new_run_is_made(tmp_path, capsys, damage, names):
+    """What a run takes over is read, and refused, before its run directory exists: the first
+    task's controllers (read after it was made, leaving it half-made), a first-task-end.pt of
+    another run (another seed's: taken over silently, with this source's rows and controllers) and
+    a metrics.csv without rows of the first task (a run with a gap in its generations)."""
     assert main(["--algo", "neat", *COMMON, "--out", str(tmp_path), "--name", "source"]) == 0
-    top = tmp_path / "source" / "controllers" / "task0-red-top.json"
+    source = tmp_path / "source"
+    top = source / "controllers" / "task0-red-top.json"
     if damage == "missing":
         top.unlink()
-    else:
+    elif damage == "damaged":
         top.write_text(json.dumps({"format": "neat-python-genome", "genome": "x"}))
+    elif damage == "metrics-cut":
+        (source / "metrics.csv").write_text("".join((source / "metrics.csv").read_text().splitlines(True)[:3]))
+    else:
+        assert main(["--algo", "neat", *COMMON, "--seed", "7", "--out", str(tmp_path), "--name", "other"]) == 0
+        (source / "checkpoints" / "first-task-end.pt").write_bytes(
+            (tmp_path / "other" / "checkpoints" / "first-task-end.pt").read_bytes())
     capsys.readouterr()
     before = snapshot(tmp_path)
     assert main(["--algo", "neat", "--reg", "1", *COMMON, "--out", str(tmp_path), "--name", "new",
-                 "--start-from", str(tmp_path / "source")]) == 2
+                 "--start-from", str(source)]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("error: ") and err.count("\n") == 1 and "task0-red-top.json" in err
+    assert err.startswith("error: ") and err.count("\n") == 1 and names in err
     assert snapshot(tmp_path) == before and not (tmp_path / "new").exists()
