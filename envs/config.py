@@ -122,8 +122,12 @@ TASKS: dict[str, Task] = {
     "green": Task(5, (5, 6)),
     "purple": Task(7, (7, 8)),
     "cyan": Task(9, (9, 10)),
+    "red-nest-bottom": Task(3, (3, 4), name="red-nest-bottom", drop_zone="bottom"),
+    "red-two-failed": Task(3, (3, 4), name="red-two-failed", failed_robots=2),
 }
-"""The paper's tasks, by name."""
+"""The built-in tasks, by name: the paper's four (red, green, purple, cyan) and the drifts of the
+named schedules ``nest-relocation`` (the nest moves to the bottom edge) and ``robot-failure``
+(robots 3 and 4 of 5 stop working)."""
 
 
 def color_rgb(color_id: int) -> tuple[int, int, int]:

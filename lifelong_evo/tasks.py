@@ -1,4 +1,4 @@
-"""Tasks by name: the built-in ones and those a run defines as data, ``[tasks.NAME]`` tables (a
+"""Tasks by name: the built-in ones (``envs.TASKS``) and those a run defines as data, ``[tasks.NAME]`` tables (a
 ``--tasks FILE`` or a ``--config`` file), each parsed into an ``envs.Task``.
 
 A table holds ``target`` (a colour name), ``season`` (a list of colour names) and, optionally,
@@ -15,13 +15,6 @@ from typing import Any
 
 from envs import COLOR_IDS, TASKS, ConfigError, Task
 
-BUILT_IN_TASKS: dict[str, Task] = {
-    **TASKS,
-    "red-nest-bottom": Task(3, (3, 4), name="red-nest-bottom", drop_zone="bottom"),
-    "red-two-failed": Task(3, (3, 4), name="red-two-failed", failed_robots=2),
-}
-"""The paper's tasks (``envs.TASKS``) and the drifts of the named schedules ``nest-relocation``
-(the nest moves to the bottom edge) and ``robot-failure`` (robots 3 and 4 of 5 stop working)."""
 TASK_KEYS = ("target", "season", "drop_zone", "rewards", "failed_robots", "motor_gain")
 """The keys of a ``[tasks.NAME]`` table; ``target`` and ``season`` are required."""
 TASK_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
@@ -38,7 +31,7 @@ def define_task(name: str, table: Any) -> Task:
     """The ``envs.Task`` a ``[tasks.NAME]`` table defines (ConfigError, naming it, otherwise)."""
     if not isinstance(name, str) or not TASK_NAME.fullmatch(name):
         raise ConfigError(f"task name {name!r} is not a name a schedule can hold: use letters, digits, - and _")
-    if name in BUILT_IN_TASKS:
+    if name in TASKS:
         raise ConfigError(f"task {name!r} is built in and cannot be defined again: give your task another name, "
                           f"e.g. {name}-2")
     if not isinstance(table, Mapping):
@@ -61,7 +54,7 @@ def define_task(name: str, table: Any) -> Task:
 def task_catalogue(tables: Mapping[str, Any] | None = None) -> dict[str, Task]:
     """Every task a run can name: the built-in ones and those ``tables`` (``{NAME: table}``) define."""
     if tables is None:
-        return dict(BUILT_IN_TASKS)
+        return dict(TASKS)
     if not isinstance(tables, Mapping):
         raise ConfigError("tasks must be a table of tables: write [tasks.NAME] and KEY = VALUE lines")
-    return {**BUILT_IN_TASKS, **{name: define_task(name, table) for name, table in tables.items()}}
+    return {**TASKS, **{name: define_task(name, table) for name, table in tables.items()}}

@@ -234,6 +234,7 @@ def test_from_dict_and_task_names():
     with pytest.raises(ConfigError, match="n_robots"):
         ForagingConfig.from_dict({"n_robots": 3})
     assert task_by_name("green") == TASKS["green"]
+    assert task_by_name("red-nest-bottom").drop_zone == "bottom" and task_by_name("red-two-failed").failed_robots == 2
     with pytest.raises(ConfigError, match="magenta"):
         task_by_name("magenta")
     assert colors_for_tasks([TASKS["red"], TASKS["green"]]) == (3, 4, 5, 6)
