@@ -5,6 +5,7 @@ Defaults are the paper's (docs/environment.md). Lengths are in robot diameters.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import asdict, dataclass, field, fields
 
 COLOR_IDS: dict[str, int] = {
@@ -34,12 +35,45 @@ class ConfigError(ValueError):
 
 DROP_ZONES: tuple[str, ...] = ("top", "bottom", "left", "right")
 """The arena edges a task's nest (drop zone) can lie on; the index is the state's ``drop_zone`` id."""
+MAX_REWARD = 1e6
+"""The largest magnitude of a reward value. The step sums rewards in the environment's dtype,
+float32 by default: an episode holds at most two events per robot and step, so at the options'
+bounds (1000 robots, 100000 steps) its sum stays below 2e14, far inside float32's range
+(3.4e38), and so do the means and sums the optimisers take over episodes and populations.
+Values near float32's range would overflow to infinity or round to another value."""
+MIN_MOTOR_GAIN = 1e-6
+"""The smallest motor gain: a factor below it leaves every robot as good as still (at the
+paper's speeds a step would move one by 2e-7, below a float32 position's resolution), and far
+below it float32, the step's dtype, rounds the factor to 0."""
+
+
+def shown(value) -> str:
+    """``repr(value)`` in one readable line: a value of thousands of digits cut in the middle."""
+    text = repr(value)
+    return text[:40] + "..." + text[-10:] if len(text) > 60 else text
+
+
+def _number(value: float) -> str:
+    """A bound as one writes it: ``1e6``, ``1e-6``."""
+    return f"{value:g}".replace("e+0", "e").replace("e-0", "e-")
+
+
+def _real(value) -> float | None:
+    """``value`` as a float if it is a real number (``numbers.Real``, numpy's included; not a
+    bool) that a float holds, else None."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        return None
+    try:
+        return float(value)
+    except OverflowError:  # an integer of hundreds of digits
+        return None
 
 
 @dataclass(frozen=True)
 class Rewards:
     """The value of each reward event (docs/environment.md, Rewards); the paper's by default.
-    Any finite numbers: a step's reward is each event's count times its value, summed."""
+    Any real numbers from ``-MAX_REWARD`` to ``MAX_REWARD``: a step's reward is each event's count
+    times its value, summed."""
 
     pick_target: float = 1.0
     """Picking up a box of the target colour."""
@@ -52,10 +86,12 @@ class Rewards:
 
     def __post_init__(self):
         for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ConfigError(f"reward {f.name} must be a finite number, got {value!r}")
-            object.__setattr__(self, f.name, float(value))
+            value = _real(getattr(self, f.name))
+            if value is None or not abs(value) <= MAX_REWARD:  # NaN fails the comparison
+                raise ConfigError(f"reward {f.name} must be a number from -{_number(MAX_REWARD)} to "
+                                  f"{_number(MAX_REWARD)} (the step sums rewards in float32: docs/environment.md, "
+                                  f"Rewards), got {shown(getattr(self, f.name))}")
+            object.__setattr__(self, f.name, value)
 
     def values(self) -> tuple[float, float, float, float]:
         """The four values in the order of the state's ``rewards`` columns."""
@@ -81,7 +117,7 @@ class Task:
     failed_robots: int = 0
     """How many robots (the highest-index ones) do nothing: they neither move nor pick nor drop."""
     motor_gain: float = 1.0
-    """Factor in (0, 1] on every robot's wheel speeds."""
+    """Factor from ``MIN_MOTOR_GAIN`` to 1 on every robot's wheel speeds."""
 
     def __post_init__(self):
         object.__setattr__(self, "season", tuple(int(c) for c in self.season))
@@ -93,17 +129,23 @@ class Task:
             unknown = sorted(set(self.rewards) - set(valid))
             if unknown:
                 raise ConfigError(f"{where}: unknown reward(s) {unknown}: valid ones are {', '.join(valid)}")
-            object.__setattr__(self, "rewards", Rewards(**self.rewards))
+            try:
+                object.__setattr__(self, "rewards", Rewards(**self.rewards))
+            except ConfigError as error:
+                raise ConfigError(f"{where}: {error}") from None
         if self.drop_zone not in DROP_ZONES:
             raise ConfigError(f"{where}: drop_zone {self.drop_zone!r} is not an edge: choose one of {', '.join(DROP_ZONES)}")
         if not isinstance(self.rewards, Rewards):
             raise ConfigError(f"{where}: rewards must be an envs.Rewards, got {type(self.rewards).__name__}")
-        if isinstance(self.failed_robots, bool) or not isinstance(self.failed_robots, int) or self.failed_robots < 0:
-            raise ConfigError(f"{where}: failed_robots must be an integer >= 0, got {self.failed_robots!r}")
-        gain = self.motor_gain
-        if isinstance(gain, bool) or not isinstance(gain, (int, float)) or not 0 < gain <= 1:
-            raise ConfigError(f"{where}: motor_gain must be a number in (0, 1], got {gain!r}")
-        object.__setattr__(self, "motor_gain", float(gain))
+        failed = self.failed_robots
+        if isinstance(failed, bool) or not isinstance(failed, numbers.Integral) or failed < 0:
+            raise ConfigError(f"{where}: failed_robots must be an integer >= 0, got {shown(failed)}")
+        object.__setattr__(self, "failed_robots", int(failed))
+        gain = _real(self.motor_gain)
+        if gain is None or not MIN_MOTOR_GAIN <= gain <= 1:  # NaN fails the comparison
+            raise ConfigError(f"{where}: motor_gain must be a number from {_number(MIN_MOTOR_GAIN)} to 1 (a smaller "
+                              f"factor leaves the robots still: docs/environment.md, Tasks), got {shown(self.motor_gain)}")
+        object.__setattr__(self, "motor_gain", gain)
 
     @property
     def drop_zone_id(self) -> int:
