@@ -172,6 +172,11 @@ named schedules ``nest-relocation`` (the nest moves to the bottom edge) and ``ro
 (robots 3 and 4 of 5 stop working)."""
 
 
+def _colour_name(color_id: int) -> str:
+    """A colour id by its name (``red``), or as ``colour 11`` where it has none."""
+    return COLOR_NAMES.get(color_id, f"colour {color_id}")
+
+
 def color_rgb(color_id: int) -> tuple[int, int, int]:
     """The display colour of colour id ``color_id`` (``UNKNOWN_RGB`` for an id without one)."""
     return COLOR_RGB.get(int(color_id), UNKNOWN_RGB)
@@ -274,24 +279,33 @@ class ForagingConfig:
         c, n = self.n_colors, self.n_neighbors
         return (c + 3) * n + 3 * n + 2 + (c + 1) + c
 
-    def check_task(self, task: Task) -> None:
-        """Raise ConfigError unless ``task`` can run in this arena."""
-        known = set(self.colors)
-        for color in (task.target, *task.season):
-            if color not in known:
-                raise ConfigError(
-                    f"task {task.name!r} uses colour id {color}, which this arena does not know "
-                    f"(colors={list(self.colors)}): add it to colors")
+    def check_task(self, task: Task, colours: bool = True) -> None:
+        """Raise ConfigError unless ``task`` can run in this arena; ``colours=False``: whatever the
+        arena's ``colors`` (a run's arena holds the colours of its schedule, not those of every
+        task it defines)."""
+        if colours:
+            for color in (task.target, *task.season):
+                if color not in self.colors:
+                    raise ConfigError(
+                        f"task {task.name!r} uses colour id {color}, which this arena does not know "
+                        f"(colors={list(self.colors)}): add it to colors")
         if task.target not in task.season:
-            raise ConfigError(f"task {task.name!r}: target {task.target} is not in its season {list(task.season)}")
+            target = _colour_name(task.target)
+            raise ConfigError(f"task {task.name!r}: target {target} is not in its season "
+                              f"[{', '.join(map(_colour_name, task.season))}]: add {target} to the season")
         n_target = int(self.n_boxes * self.rate_target)
         if n_target < self.n_boxes and len(set(task.season) - {task.target}) == 0:
             raise ConfigError(
                 f"task {task.name!r}: the season has no colour besides the target, but "
                 f"{self.n_boxes - n_target} boxes need one: add a colour or set rate_target=1")
-        if task.failed_robots > self.n_agents - 1:
-            raise ConfigError(f"task {task.name!r}: failed_robots={task.failed_robots}, but at least one of the "
-                              f"{self.n_agents} robots must work: use 0 to {self.n_agents - 1}")
+        failed, robots = task.failed_robots, self.n_agents
+        if failed > robots - 1:
+            if TASKS.get(task.name) == task:  # a built-in task cannot be edited
+                raise ConfigError(f"task {task.name!r} is built in with {failed} failed robots, and of {robots} "
+                                  f"robots (n_agents) none would work: raise n_agents to at least {failed + 1}, or "
+                                  f"define a task of your own with failed_robots from 0 to {robots - 1}")
+            raise ConfigError(f"task {task.name!r}: failed_robots={failed}, but at least one of the {robots} robots "
+                              f"must work: use 0 to {robots - 1}, or raise n_agents to at least {failed + 1}")
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -262,8 +262,15 @@ class RunConfig:
         except ScheduleError as error:
             raise ConfigError(str(error)) from None
         env = config.env_config()
-        for task in distinct_tasks(phases):
+        scheduled = distinct_tasks(phases)
+        for task in scheduled:
             env.check_task(task)
+        # every task the run defines must fit the swarm, the ones the schedule does not use too
+        # (but for their colours: the arena holds the schedule's)
+        defined = task_catalogue(config.tasks)
+        for name in config.tasks:
+            if name not in {task.name for task in scheduled}:
+                env.check_task(defined[name], colours=False)
         config._check_baselines(phases)
         if machine:
             check_device(config.device)

@@ -51,6 +51,9 @@ def test_a_task_file_defines_tasks_the_schedule_names(tmp_path):
     assert phases[0].task is TASKS["red"] or phases[0].task == TASKS["red"]
     blended = configured("--tasks", task_file(tmp_path, SOUTH), "--schedule", "red:2,red>red-south:3").phases()
     assert blended[1].source == TASKS["red"] and blended[1].task == south
+    # a task the schedule leaves unused may have colours the run's arena (the schedule's) lacks
+    dark = SOUTH + "[tasks.dark]\ntarget = 'black'\nseason = ['black', 'white']\n"
+    assert configured("--tasks", task_file(tmp_path, dark), "--schedule", "red-south").env_config().colors == (3, 4)
 
 
 def test_a_config_file_holds_task_tables_and_the_flag_wins(tmp_path):
@@ -99,6 +102,10 @@ BAD_FILES = {
     "nest edge": (SOUTH.replace('"bottom"', '"north"'), "drop_zone 'north' is not an edge: choose one of top, bottom"),
     "too many failed": (SOUTH.replace("failed_robots = 1", "failed_robots = 5"),
                         "failed_robots=5, but at least one of the 5 robots must work: use 0 to 4"),
+    "too many failed, unused": (SOUTH + "[tasks.spare]\ntarget = 'red'\nseason = ['red', 'blue']\nfailed_robots = 5\n",
+                                "task 'spare': failed_robots=5, but at least one of the 5 robots must work"),
+    "target outside season": (SOUTH.replace('season = ["red", "blue"]', 'season = ["blue"]'),
+                              r"task 'red-south': target red is not in its season \[blue\]: add red to the season"),
     "negative failed": (SOUTH.replace("failed_robots = 1", "failed_robots = -1"), "failed_robots must be an integer >= 0"),
     "infinite reward": (SOUTH.replace("pick_other = -2.5", "pick_other = -inf"),
                         "task 'red-south': reward pick_other must be a number from -1e6 to 1e6"),
@@ -137,8 +144,11 @@ def test_a_bad_task_file_is_one_line_before_anything_is_written(case, tmp_path, 
                                       r"\[tasks.red-south\] table"),
     (["--schedule", "red>blue-north:3"], "unknown task 'blue-north'"),
     (["--tasks", "/nonexistent/tasks.toml"], "does not exist"),
+    # a built-in task cannot be edited: the fix is a larger swarm or a task of one's own
+    (["--schedule", "robot-failure", "--env", "n_agents=2"], "task 'red-two-failed' is built in with 2 failed robots.*"
+                                                             "raise n_agents to at least 3, or define a task of your own"),
 ])
-def test_a_schedule_naming_an_undefined_task_is_refused(argv, message, tmp_path, capsys, nothing_runs):
+def test_a_schedule_the_arena_cannot_run_is_refused(argv, message, tmp_path, capsys, nothing_runs):
     assert re.search(message, refused(argv, tmp_path / "runs", capsys))
 
 
