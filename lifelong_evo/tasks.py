@@ -5,7 +5,10 @@ A table holds ``target`` (a colour name), ``season`` (a list of colour names) an
 the drift fields of ``envs.Task``: ``drop_zone``, ``rewards`` (a table of event values),
 ``failed_robots`` and ``motor_gain`` (docs/environment.md, Tasks). A defined task can be used in
 ``--schedule`` by its name, as a built-in one. A built-in name cannot be defined again: a run's
-``red`` is always the paper's red. Every error is a ``ConfigError`` naming the task and the fix.
+``red`` is always the paper's red. Nor can a name that differs from a built-in one or from another
+defined one only in case or in ``_`` for ``-`` (``folded``): a run's default name writes ``_`` as
+``-``, and a case-insensitive file system (macOS's, Windows') holds ``replay-Red.rrd`` and
+``replay-red.rrd`` as one file. Every error is a ``ConfigError`` naming the task and the fix.
 """
 from __future__ import annotations
 
@@ -27,12 +30,21 @@ def _colour(task: str, key: str, name: Any) -> int:
     return COLOR_IDS[name]
 
 
+def folded(name: str) -> str:
+    """Task ``name`` as file names and run names may see it: lower case (a case-insensitive file
+    system), ``_`` as ``-`` (``RunConfig.default_name``)."""
+    return name.lower().replace("_", "-")
+
+
 def define_task(name: str, table: Any) -> Task:
     """The ``envs.Task`` a ``[tasks.NAME]`` table defines (ConfigError, naming it, otherwise)."""
     if not isinstance(name, str) or not TASK_NAME.fullmatch(name):
         raise ConfigError(f"task name {name!r} is not a name a schedule can hold: use letters, digits, - and _")
-    if name in TASKS:
-        raise ConfigError(f"task {name!r} is built in and cannot be defined again: give your task another name, "
+    built_in = next((other for other in TASKS if folded(other) == folded(name)), None)
+    if built_in is not None:
+        same = "is built in" if built_in == name else (f"differs from the built-in task {built_in!r} only in case or "
+                                                        "in _ for -, which run and file names do not tell apart,")
+        raise ConfigError(f"task {name!r} {same} and cannot be defined again: give your task another name, "
                           f"e.g. {name}-2")
     if not isinstance(table, Mapping):
         raise ConfigError(f"task {name!r} must be a table: write [tasks.{name}] and KEY = VALUE lines")
@@ -57,4 +69,11 @@ def task_catalogue(tables: Mapping[str, Any] | None = None) -> dict[str, Task]:
         return dict(TASKS)
     if not isinstance(tables, Mapping):
         raise ConfigError("tasks must be a table of tables: write [tasks.NAME] and KEY = VALUE lines")
-    return {**TASKS, **{name: define_task(name, table) for name, table in tables.items()}}
+    defined = {name: define_task(name, table) for name, table in tables.items()}
+    seen: dict[str, str] = {}
+    for name in defined:
+        first = seen.setdefault(folded(name), name)
+        if first != name:
+            raise ConfigError(f"tasks {first!r} and {name!r} differ only in case or in _ for -, which run and file "
+                              f"names do not tell apart: rename one of them")
+    return {**TASKS, **defined}
