@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import numbers
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 
 COLOR_IDS: dict[str, int] = {
@@ -124,7 +125,7 @@ class Task:
         if not self.name:
             object.__setattr__(self, "name", COLOR_NAMES.get(self.target, f"colour{self.target}"))
         where = f"task {self.name!r}"
-        if isinstance(self.rewards, dict):
+        if isinstance(self.rewards, Mapping):
             valid = [f.name for f in fields(Rewards)]
             unknown = sorted(set(self.rewards) - set(valid))
             if unknown:
@@ -136,7 +137,8 @@ class Task:
         if self.drop_zone not in DROP_ZONES:
             raise ConfigError(f"{where}: drop_zone {self.drop_zone!r} is not an edge: choose one of {', '.join(DROP_ZONES)}")
         if not isinstance(self.rewards, Rewards):
-            raise ConfigError(f"{where}: rewards must be an envs.Rewards, got {type(self.rewards).__name__}")
+            raise ConfigError(f"{where}: rewards must be a table of event values, e.g. rewards = {{ pick_other = -2 }} "
+                              f"(in Python a dict or an envs.Rewards), got {shown(self.rewards)}")
         failed = self.failed_robots
         if isinstance(failed, bool) or not isinstance(failed, numbers.Integral) or failed < 0:
             raise ConfigError(f"{where}: failed_robots must be an integer >= 0, got {shown(failed)}")

@@ -20,6 +20,9 @@ from envs import COLOR_IDS, TASKS, ConfigError, Task
 
 TASK_KEYS = ("target", "season", "drop_zone", "rewards", "failed_robots", "motor_gain")
 """The keys of a ``[tasks.NAME]`` table; ``target`` and ``season`` are required."""
+TASK_TABLES = ("must be [tasks.NAME] tables, one per task: write e.g. [tasks.red-south] and below it "
+               "target = \"red\" and season = [\"red\", \"blue\"]")
+"""How tasks are written, for a message about a ``tasks`` that is no table of tables."""
 TASK_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
 """A task name: it appears in schedules (beside ``,``, ``:`` and ``>``) and in file names."""
 
@@ -68,7 +71,7 @@ def task_catalogue(tables: Mapping[str, Any] | None = None) -> dict[str, Task]:
     if tables is None:
         return dict(TASKS)
     if not isinstance(tables, Mapping):
-        raise ConfigError("tasks must be a table of tables: write [tasks.NAME] and KEY = VALUE lines")
+        raise ConfigError(f"tasks {TASK_TABLES}")
     defined = {name: define_task(name, table) for name, table in tables.items()}
     seen: dict[str, str] = {}
     for name in defined:

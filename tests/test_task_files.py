@@ -57,7 +57,8 @@ def test_a_task_file_defines_tasks_the_schedule_names(tmp_path):
 
 
 def test_a_config_file_holds_task_tables_and_the_flag_wins(tmp_path):
-    config_file = task_file(tmp_path, 'schedule = "red:2,red-south:2"\n' + SOUTH, "run.toml")
+    # with a byte-order mark, as some Windows editors save UTF-8 (tomllib alone refuses it)
+    config_file = task_file(tmp_path, b"\xef\xbb\xbf" + ('schedule = "red:2,red-south:2"\n' + SOUTH).encode(), "run.toml")
     assert configured("--config", config_file).phases()[1].task.drop_zone == "bottom"
     other = task_file(tmp_path, SOUTH.replace('"bottom"', '"left"'))
     assert configured("--config", config_file, "--tasks", other).phases()[1].task.drop_zone == "left"
@@ -132,8 +133,13 @@ BAD_FILES = {
     "names one run name": (SOUTH + SOUTH.replace("[tasks.red-south]", "[tasks.RED_south]"),
                            "tasks 'red-south' and 'RED_south' differ only in case or in _ for -.*rename one of them"),
     "other settings": ("seed = 3\n" + SOUTH, r"holds \['seed'\]: it may hold only \[tasks.NAME\] tables"),
-    "not TOML": ("[tasks.red-south\n", "is not valid TOML"),
-    "not UTF-8": (b"[tasks.x]\ntarget = '\xff'\n", "is not UTF-8 text"),
+    "rewards a word": (SOUTH.replace("rewards = { pick_other = -2.5, deliver_other = -1 }", 'rewards = "high"'),
+                       r"task 'red-south': rewards must be a table of event values, e.g. rewards = \{ pick_other = -2 \}"),
+    "tasks a value": ("tasks = 3\n", r"tasks in task file \S+ must be \[tasks.NAME\] tables, one per task: write e.g. "
+                                     r"\[tasks.red-south\]"),
+    "tasks an array": ("[[tasks]]\ntarget = 'red'\n", r"tasks in task file \S+ must be \[tasks.NAME\] tables"),
+    "not TOML": ("[tasks.red-south\n", r"^error: task file \S+ is not valid TOML"),
+    "not UTF-8": (b"[tasks.x]\ntarget = '\xff'\n", r"^error: task file \S+ is not UTF-8 text \(byte 20 cannot"),
     "no task": ("", "defines no task"),
 }
 
@@ -149,7 +155,7 @@ def test_a_bad_task_file_is_one_line_before_anything_is_written(case, tmp_path, 
     (["--schedule", "red,red-south"], "unknown task 'red-south' in schedule 'red,red-south'.*define it in a "
                                       r"\[tasks.red-south\] table"),
     (["--schedule", "red>blue-north:3"], "unknown task 'blue-north'"),
-    (["--tasks", "/nonexistent/tasks.toml"], "does not exist"),
+    (["--tasks", "/nonexistent/tasks.toml"], "task file /nonexistent/tasks.toml does not exist"),
     # a built-in task cannot be edited: the fix is a larger swarm or a task of one's own
     (["--schedule", "robot-failure", "--env", "n_agents=2"], "task 'red-two-failed' is built in with 2 failed robots.*"
                                                              "raise n_agents to at least 3, or define a task of your own"),
@@ -161,6 +167,9 @@ def test_a_schedule_the_arena_cannot_run_is_refused(argv, message, tmp_path, cap
 def test_a_bad_task_in_a_config_file_is_refused_too(tmp_path, capsys, nothing_runs):
     config_file = task_file(tmp_path, 'schedule = "red-south"\n' + SOUTH.replace('"bottom"', '"up"'), "run.toml")
     assert "drop_zone 'up' is not an edge" in refused(["--config", config_file], tmp_path / "runs", capsys)
+    config_file = task_file(tmp_path, 'tasks = 3\n', "run.toml")
+    assert "tasks in the config file must be [tasks.NAME] tables" in refused(["--config", config_file], tmp_path / "runs",
+                                                                             capsys)
 
 
 # ------------------------------------------------------------------------- config.json, resume
