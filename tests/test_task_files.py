@@ -15,6 +15,7 @@ from envs import TASKS, Rewards
 from lifelong_evo import loop
 from lifelong_evo.commands.cli import build_parser, main
 from lifelong_evo.commands.flags import resolve_run_config
+from lifelong_evo.commands.grid import build_grid
 from lifelong_evo.schedule import NAMED_SCHEDULES, parse_schedule
 
 SOUTH = """
@@ -62,6 +63,25 @@ def test_a_config_file_holds_task_tables_and_the_flag_wins(tmp_path):
     assert configured("--config", config_file).phases()[1].task.drop_zone == "bottom"
     other = task_file(tmp_path, SOUTH.replace('"bottom"', '"left"'))
     assert configured("--config", config_file, "--tasks", other).phases()[1].task.drop_zone == "left"
+
+
+def test_a_sweep_file_holds_task_tables_and_the_flag_adds_its_own(tmp_path, capsys):
+    sweep = ('schedule = "red:2,red-south:2"\n[grid]\nseed = [1, 2]\n' + SOUTH
+             + "[tasks.spare]\ntarget = 'green'\nseason = ['green', 'yellow']\n")
+    argv = ["sweep", "--config", task_file(tmp_path, sweep, "sweep.toml"), "--preset", "smoke", "--out", str(tmp_path)]
+    trials = build_grid(build_parser().parse_args(argv)).trials
+    assert [trial.name for trial in trials] == ["seed1", "seed2"]
+    assert all(trial.config.phases()[1].task.drop_zone == "bottom" and "spare" in trial.config.tasks for trial in trials)
+    west = build_grid(build_parser().parse_args([*argv, "--tasks", task_file(tmp_path, SOUTH.replace('"bottom"', '"left"'))]))
+    assert west.trials[0].config.phases()[1].task.drop_zone == "left" and "spare" in west.trials[0].config.tasks
+    for bad, message in (("tasks = 3\n", r"tasks in \S+ must be \[tasks.NAME\] tables"),
+                         ("[grid]\nseed = [1, 2]\ntasks = [{}]\n", r"tasks in \[grid\] of \S+: every trial defines the same"),
+                         ("[grid]\nvariants = [{ tasks = {} }]\n", r"tasks in \[grid\] variants of \S+: every trial")):
+        assert main(["sweep", "--config", task_file(tmp_path, bad, "bad.toml"), "--out", str(tmp_path / "bad"),
+                     "--dry-run"]) == 2
+        err = capsys.readouterr().err
+        assert re.search(f"^error: {message}", err) and err.count("\n") == 1, err
+    assert not (tmp_path / "bad").exists()
 
 
 def test_the_named_drift_schedules():
