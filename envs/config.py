@@ -146,7 +146,8 @@ class Task:
         gain = _real(self.motor_gain)
         if gain is None or not MIN_MOTOR_GAIN <= gain <= 1:  # NaN fails the comparison
             raise ConfigError(f"{where}: motor_gain must be a number from {_number(MIN_MOTOR_GAIN)} to 1 (a smaller "
-                              f"factor leaves the robots still: docs/environment.md, Tasks), got {shown(self.motor_gain)}")
+                              "factor leaves the robots still: docs/environment.md, Tasks), got "
+                              f"{shown(self.motor_gain)}")
         object.__setattr__(self, "motor_gain", gain)
 
     @property

@@ -1,5 +1,6 @@
-"""Tasks by name: the built-in ones (``envs.TASKS``) and those a run defines as data, ``[tasks.NAME]`` tables (a
-``--tasks FILE`` or a ``--config`` file), each parsed into an ``envs.Task``.
+"""Tasks by name: the built-in ones (``envs.TASKS``) and those a run defines as data,
+``[tasks.NAME]`` tables (a ``--tasks FILE`` or a ``--config`` file), each parsed into an
+``envs.Task``.
 
 A table holds ``target`` (a colour name), ``season`` (a list of colour names) and, optionally,
 the drift fields of ``envs.Task``: ``drop_zone``, ``rewards`` (a table of event values),

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from envs import MAX_REWARD, MIN_MOTOR_GAIN, TASKS, ConfigError, ForagingConfig, ForagingEnv, Rewards, Task, colors_for_tasks, task_by_name
+from envs import (MAX_REWARD, MIN_MOTOR_GAIN, TASKS, ConfigError, ForagingConfig, ForagingEnv, Rewards, Task,
+                  colors_for_tasks, task_by_name)
 
 EIGHT = tuple(range(3, 11))
 

@@ -59,7 +59,8 @@ def test_a_task_file_defines_tasks_the_schedule_names(tmp_path):
 
 def test_a_config_file_holds_task_tables_and_the_flag_wins(tmp_path):
     # with a byte-order mark, as some Windows editors save UTF-8 (tomllib alone refuses it)
-    config_file = task_file(tmp_path, b"\xef\xbb\xbf" + ('schedule = "red:2,red-south:2"\n' + SOUTH).encode(), "run.toml")
+    text = 'schedule = "red:2,red-south:2"\n' + SOUTH
+    config_file = task_file(tmp_path, b"\xef\xbb\xbf" + text.encode(), "run.toml")
     assert configured("--config", config_file).phases()[1].task.drop_zone == "bottom"
     other = task_file(tmp_path, SOUTH.replace('"bottom"', '"left"'))
     assert configured("--config", config_file, "--tasks", other).phases()[1].task.drop_zone == "left"
@@ -72,10 +73,11 @@ def test_a_sweep_file_holds_task_tables_and_the_flag_adds_its_own(tmp_path, caps
     trials = build_grid(build_parser().parse_args(argv)).trials
     assert [trial.name for trial in trials] == ["seed1", "seed2"]
     assert all(trial.config.phases()[1].task.drop_zone == "bottom" and "spare" in trial.config.tasks for trial in trials)
-    west = build_grid(build_parser().parse_args([*argv, "--tasks", task_file(tmp_path, SOUTH.replace('"bottom"', '"left"'))]))
+    west_file = task_file(tmp_path, SOUTH.replace('"bottom"', '"left"'))
+    west = build_grid(build_parser().parse_args([*argv, "--tasks", west_file]))
     assert west.trials[0].config.phases()[1].task.drop_zone == "left" and "spare" in west.trials[0].config.tasks
     for bad, message in (("tasks = 3\n", r"tasks in \S+ must be \[tasks.NAME\] tables"),
-                         ("[grid]\nseed = [1, 2]\ntasks = [{}]\n", r"tasks in \[grid\] of \S+: every trial defines the same"),
+                         ("[grid]\nseed = [1, 2]\ntasks = [{}]\n", r"tasks in \[grid\] of \S+: every trial defines"),
                          ("[grid]\nvariants = [{ tasks = {} }]\n", r"tasks in \[grid\] variants of \S+: every trial")):
         assert main(["sweep", "--config", task_file(tmp_path, bad, "bad.toml"), "--out", str(tmp_path / "bad"),
                      "--dry-run"]) == 2

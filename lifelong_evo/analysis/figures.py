@@ -102,9 +102,9 @@ def check_task_looks(run: Run) -> None:
     for target in {target for target, _ in looks.values()}:
         names = [name for name, (colour, _) in looks.items() if colour == target]
         if len(names) > len(TASK_STYLES):
-            raise UserError(f"{run.path}: the schedule has {len(names)} tasks of one target colour ({', '.join(names)}), "
-                            f"and plot tells at most {len(TASK_STYLES)} apart: read this run's metrics.csv "
-                            "(docs/metrics.md) for the others")
+            raise UserError(f"{run.path}: the schedule has {len(names)} tasks of one target colour "
+                            f"({', '.join(names)}), and plot tells at most {len(TASK_STYLES)} apart: read this run's "
+                            "metrics.csv (docs/metrics.md) for the others")
 
 
 # ---------------------------------------------------------------------------------------------

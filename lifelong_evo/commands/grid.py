@@ -104,7 +104,8 @@ def _file_layer(path: str):
 
     def no_tasks_axis(where: str) -> None:
         raise UserError(f"tasks in {where} of {path}: every trial defines the same tasks: write them as "
-                        "[tasks.NAME] tables outside [grid] (or give --tasks FILE), and vary the schedule that names them")
+                        "[tasks.NAME] tables outside [grid] (or give --tasks FILE), and vary the schedule that "
+                        "names them")
     axes: dict[str, list[Any]] = {}
     fixed: dict[str, Any] = {}
     by_algo: dict[str, tuple[dict[str, list[Any]], dict[str, Any]]] = {}
