@@ -1,10 +1,11 @@
 """The batched swarm-foraging environment and its Gymnasium / PettingZoo adapters."""
-from .config import (COLOR_IDS, COLOR_NAMES, COLOR_RGB, DROP_ZONES, TASKS, UNKNOWN_RGB, ConfigError, ForagingConfig,
-                     Rewards, Task, color_rgb, colors_for_tasks, task_by_name, task_rgb)
+from .config import (COLOR_IDS, COLOR_NAMES, COLOR_RGB, DROP_ZONES, MAX_REWARD, MIN_MOTOR_GAIN, TASKS, UNKNOWN_RGB,
+                     ConfigError, ForagingConfig, Rewards, Task, color_rgb, colors_for_tasks, task_by_name, task_rgb)
 from .foraging import ForagingEnv, outputs_to_wheels
 from .state import ForagingState
 
-__all__ = ["COLOR_IDS", "COLOR_NAMES", "COLOR_RGB", "DROP_ZONES", "TASKS", "UNKNOWN_RGB", "ConfigError",
+__all__ = ["COLOR_IDS", "COLOR_NAMES", "COLOR_RGB", "DROP_ZONES", "MAX_REWARD", "MIN_MOTOR_GAIN", "TASKS", "UNKNOWN_RGB",
+           "ConfigError",
            "ForagingConfig", "ForagingEnv", "ForagingState", "Rewards", "Task", "color_rgb", "colors_for_tasks", "outputs_to_wheels",
            "task_by_name", "task_rgb"]
 

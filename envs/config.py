@@ -5,6 +5,8 @@ Defaults are the paper's (docs/environment.md). Lengths are in robot diameters.
 from __future__ import annotations
 
 import math
+import numbers
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 
 COLOR_IDS: dict[str, int] = {
@@ -34,12 +36,45 @@ class ConfigError(ValueError):
 
 DROP_ZONES: tuple[str, ...] = ("top", "bottom", "left", "right")
 """The arena edges a task's nest (drop zone) can lie on; the index is the state's ``drop_zone`` id."""
+MAX_REWARD = 1e6
+"""The largest magnitude of a reward value. The step sums rewards in the environment's dtype,
+float32 by default: an episode holds at most two events per robot and step, so at the options'
+bounds (1000 robots, 100000 steps) its sum stays below 2e14, far inside float32's range
+(3.4e38), and so do the means and sums the optimisers take over episodes and populations.
+Values near float32's range would overflow to infinity or round to another value."""
+MIN_MOTOR_GAIN = 1e-6
+"""The smallest motor gain: a factor below it leaves every robot as good as still (at the
+paper's speeds a step would move one by 2e-7, below a float32 position's resolution), and far
+below it float32, the step's dtype, rounds the factor to 0."""
+
+
+def shown(value) -> str:
+    """``repr(value)`` in one readable line: a value of thousands of digits cut in the middle."""
+    text = repr(value)
+    return text[:40] + "..." + text[-10:] if len(text) > 60 else text
+
+
+def _number(value: float) -> str:
+    """A bound as one writes it: ``1e6``, ``1e-6``."""
+    return f"{value:g}".replace("e+0", "e").replace("e-0", "e-")
+
+
+def _real(value) -> float | None:
+    """``value`` as a float if it is a real number (``numbers.Real``, numpy's included; not a
+    bool) that a float holds, else None."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        return None
+    try:
+        return float(value)
+    except OverflowError:  # an integer of hundreds of digits
+        return None
 
 
 @dataclass(frozen=True)
 class Rewards:
     """The value of each reward event (docs/environment.md, Rewards); the paper's by default.
-    Any finite numbers: a step's reward is each event's count times its value, summed."""
+    Any real numbers from ``-MAX_REWARD`` to ``MAX_REWARD``: a step's reward is each event's count
+    times its value, summed."""
 
     pick_target: float = 1.0
     """Picking up a box of the target colour."""
@@ -52,10 +87,12 @@ class Rewards:
 
     def __post_init__(self):
         for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ConfigError(f"reward {f.name} must be a finite number, got {value!r}")
-            object.__setattr__(self, f.name, float(value))
+            value = _real(getattr(self, f.name))
+            if value is None or not abs(value) <= MAX_REWARD:  # NaN fails the comparison
+                raise ConfigError(f"reward {f.name} must be a number from -{_number(MAX_REWARD)} to "
+                                  f"{_number(MAX_REWARD)} (the step sums rewards in float32: docs/environment.md, "
+                                  f"Rewards), got {shown(getattr(self, f.name))}")
+            object.__setattr__(self, f.name, value)
 
     def values(self) -> tuple[float, float, float, float]:
         """The four values in the order of the state's ``rewards`` columns."""
@@ -81,29 +118,37 @@ class Task:
     failed_robots: int = 0
     """How many robots (the highest-index ones) do nothing: they neither move nor pick nor drop."""
     motor_gain: float = 1.0
-    """Factor in (0, 1] on every robot's wheel speeds."""
+    """Factor from ``MIN_MOTOR_GAIN`` to 1 on every robot's wheel speeds."""
 
     def __post_init__(self):
         object.__setattr__(self, "season", tuple(int(c) for c in self.season))
         if not self.name:
             object.__setattr__(self, "name", COLOR_NAMES.get(self.target, f"colour{self.target}"))
         where = f"task {self.name!r}"
-        if isinstance(self.rewards, dict):
+        if isinstance(self.rewards, Mapping):
             valid = [f.name for f in fields(Rewards)]
             unknown = sorted(set(self.rewards) - set(valid))
             if unknown:
                 raise ConfigError(f"{where}: unknown reward(s) {unknown}: valid ones are {', '.join(valid)}")
-            object.__setattr__(self, "rewards", Rewards(**self.rewards))
+            try:
+                object.__setattr__(self, "rewards", Rewards(**self.rewards))
+            except ConfigError as error:
+                raise ConfigError(f"{where}: {error}") from None
         if self.drop_zone not in DROP_ZONES:
             raise ConfigError(f"{where}: drop_zone {self.drop_zone!r} is not an edge: choose one of {', '.join(DROP_ZONES)}")
         if not isinstance(self.rewards, Rewards):
-            raise ConfigError(f"{where}: rewards must be an envs.Rewards, got {type(self.rewards).__name__}")
-        if isinstance(self.failed_robots, bool) or not isinstance(self.failed_robots, int) or self.failed_robots < 0:
-            raise ConfigError(f"{where}: failed_robots must be an integer >= 0, got {self.failed_robots!r}")
-        gain = self.motor_gain
-        if isinstance(gain, bool) or not isinstance(gain, (int, float)) or not 0 < gain <= 1:
-            raise ConfigError(f"{where}: motor_gain must be a number in (0, 1], got {gain!r}")
-        object.__setattr__(self, "motor_gain", float(gain))
+            raise ConfigError(f"{where}: rewards must be a table of event values, e.g. rewards = {{ pick_other = -2 }} "
+                              f"(in Python a dict or an envs.Rewards), got {shown(self.rewards)}")
+        failed = self.failed_robots
+        if isinstance(failed, bool) or not isinstance(failed, numbers.Integral) or failed < 0:
+            raise ConfigError(f"{where}: failed_robots must be an integer >= 0, got {shown(failed)}")
+        object.__setattr__(self, "failed_robots", int(failed))
+        gain = _real(self.motor_gain)
+        if gain is None or not MIN_MOTOR_GAIN <= gain <= 1:  # NaN fails the comparison
+            raise ConfigError(f"{where}: motor_gain must be a number from {_number(MIN_MOTOR_GAIN)} to 1 (a smaller "
+                              "factor leaves the robots still: docs/environment.md, Tasks), got "
+                              f"{shown(self.motor_gain)}")
+        object.__setattr__(self, "motor_gain", gain)
 
     @property
     def drop_zone_id(self) -> int:
@@ -122,8 +167,17 @@ TASKS: dict[str, Task] = {
     "green": Task(5, (5, 6)),
     "purple": Task(7, (7, 8)),
     "cyan": Task(9, (9, 10)),
+    "red-nest-bottom": Task(3, (3, 4), name="red-nest-bottom", drop_zone="bottom"),
+    "red-two-failed": Task(3, (3, 4), name="red-two-failed", failed_robots=2),
 }
-"""The paper's tasks, by name."""
+"""The built-in tasks, by name: the paper's four (red, green, purple, cyan) and the drifts of the
+named schedules ``nest-relocation`` (the nest moves to the bottom edge) and ``robot-failure``
+(robots 3 and 4 of 5 stop working)."""
+
+
+def _colour_name(color_id: int) -> str:
+    """A colour id by its name (``red``), or as ``colour 11`` where it has none."""
+    return COLOR_NAMES.get(color_id, f"colour {color_id}")
 
 
 def color_rgb(color_id: int) -> tuple[int, int, int]:
@@ -228,24 +282,33 @@ class ForagingConfig:
         c, n = self.n_colors, self.n_neighbors
         return (c + 3) * n + 3 * n + 2 + (c + 1) + c
 
-    def check_task(self, task: Task) -> None:
-        """Raise ConfigError unless ``task`` can run in this arena."""
-        known = set(self.colors)
-        for color in (task.target, *task.season):
-            if color not in known:
-                raise ConfigError(
-                    f"task {task.name!r} uses colour id {color}, which this arena does not know "
-                    f"(colors={list(self.colors)}): add it to colors")
+    def check_task(self, task: Task, colours: bool = True) -> None:
+        """Raise ConfigError unless ``task`` can run in this arena; ``colours=False``: whatever the
+        arena's ``colors`` (a run's arena holds the colours of its schedule, not those of every
+        task it defines)."""
+        if colours:
+            for color in (task.target, *task.season):
+                if color not in self.colors:
+                    raise ConfigError(
+                        f"task {task.name!r} uses colour id {color}, which this arena does not know "
+                        f"(colors={list(self.colors)}): add it to colors")
         if task.target not in task.season:
-            raise ConfigError(f"task {task.name!r}: target {task.target} is not in its season {list(task.season)}")
+            target = _colour_name(task.target)
+            raise ConfigError(f"task {task.name!r}: target {target} is not in its season "
+                              f"[{', '.join(map(_colour_name, task.season))}]: add {target} to the season")
         n_target = int(self.n_boxes * self.rate_target)
         if n_target < self.n_boxes and len(set(task.season) - {task.target}) == 0:
             raise ConfigError(
                 f"task {task.name!r}: the season has no colour besides the target, but "
                 f"{self.n_boxes - n_target} boxes need one: add a colour or set rate_target=1")
-        if task.failed_robots > self.n_agents - 1:
-            raise ConfigError(f"task {task.name!r}: failed_robots={task.failed_robots}, but at least one of the "
-                              f"{self.n_agents} robots must work: use 0 to {self.n_agents - 1}")
+        failed, robots = task.failed_robots, self.n_agents
+        if failed > robots - 1:
+            if TASKS.get(task.name) == task:  # a built-in task cannot be edited
+                raise ConfigError(f"task {task.name!r} is built in with {failed} failed robots, and of {robots} "
+                                  f"robots (n_agents) none would work: raise n_agents to at least {failed + 1}, or "
+                                  f"define a task of your own with failed_robots from 0 to {robots - 1}")
+            raise ConfigError(f"task {task.name!r}: failed_robots={failed}, but at least one of the {robots} robots "
+                              f"must work: use 0 to {robots - 1}, or raise n_agents to at least {failed + 1}")
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -14,7 +14,7 @@ from envs.numerics import Numerics
 from .options import flag, parse_table, parse_value, schema
 from .schedule import (MAX_GENERATIONS, ScheduleError, arena_colors, distinct_tasks, parse_schedule,
                        rehearsal_episodes, training_episodes)
-from .tasks import task_catalogue
+from .tasks import TASK_TABLES, task_catalogue
 
 DEFAULT_REGULARISER = "default"
 """``RunConfig.regulariser`` before it is resolved: the optimiser's own (``resolve_regulariser``)."""
@@ -262,8 +262,15 @@ class RunConfig:
         except ScheduleError as error:
             raise ConfigError(str(error)) from None
         env = config.env_config()
-        for task in distinct_tasks(phases):
+        scheduled = distinct_tasks(phases)
+        for task in scheduled:
             env.check_task(task)
+        # every task the run defines must fit the swarm, the ones the schedule does not use too
+        # (but for their colours: the arena holds the schedule's)
+        defined = task_catalogue(config.tasks)
+        for name in config.tasks:
+            if name not in {task.name for task in scheduled}:
+                env.check_task(defined[name], colours=False)
         config._check_baselines(phases)
         if machine:
             check_device(config.device)
@@ -399,31 +406,36 @@ def require_cpp_compiler() -> None:
                           "or run eagerly with --no-compile") from None
 
 
-def load_toml(path: str | Path) -> dict[str, Any]:
-    """Read a run configuration file (the keys of RunConfig; [env], [algo_options] and [tasks.NAME] tables)."""
+def load_toml(path: str | Path, what: str = "config file") -> dict[str, Any]:
+    """Read a run configuration file (the keys of RunConfig; [env], [algo_options] and [tasks.NAME]
+    tables); ``what`` names the file in errors (``task file`` for ``--tasks``). UTF-8 text, as TOML
+    is; a leading byte-order mark (which some Windows editors write, and tomllib refuses) is skipped."""
     try:
         with open(path, "rb") as handle:
-            return tomllib.load(handle)
+            text = handle.read().decode("utf-8")
+        return tomllib.loads(text.removeprefix("\ufeff"))
     except FileNotFoundError:
-        raise ConfigError(f"config file {path} does not exist") from None
+        raise ConfigError(f"{what} {path} does not exist") from None
     except tomllib.TOMLDecodeError as error:
-        raise ConfigError(f"config file {path} is not valid TOML: {error}") from None
+        raise ConfigError(f"{what} {path} is not valid TOML: {error}") from None
     except UnicodeDecodeError as error:  # TOML is UTF-8 text
-        raise ConfigError(f"config file {path} is not UTF-8 text (byte {error.start} cannot be decoded): "
+        raise ConfigError(f"{what} {path} is not UTF-8 text (byte {error.start} cannot be decoded): "
                           "save it as UTF-8") from None
     except OSError as error:
-        raise ConfigError(f"config file {path} cannot be read: {error.strerror}") from None
+        raise ConfigError(f"{what} {path} cannot be read: {error.strerror}") from None
 
 
 def load_tasks(path: str | Path) -> dict[str, Any]:
     """The ``[tasks.NAME]`` tables of a task file (``--tasks``), which holds nothing else."""
-    values = load_toml(path)
+    values = load_toml(path, "task file")
     others = sorted(set(values) - {"tasks"})
     if others:
         raise ConfigError(f"task file {path} holds {others}: it may hold only [tasks.NAME] tables "
                           "(put other settings in --config)")
     if not values.get("tasks"):
         raise ConfigError(f"task file {path} defines no task: write [tasks.NAME] tables")
+    if not isinstance(values["tasks"], dict):
+        raise ConfigError(f"tasks in task file {path} {TASK_TABLES}")
     return values["tasks"]
 
 
@@ -452,7 +464,8 @@ def merge_layers(preset: str = "paper", file_values: dict | None = None, overrid
         for key, value in layer.items():
             if key in ("env", "algo_options", "tasks"):  # tasks merge by name, a task's table whole
                 if not isinstance(value, dict):
-                    raise ConfigError(f"{key} in {source} must be a table: write [{key}] and KEY = VALUE lines")
+                    raise ConfigError(f"{key} in {source} " + (TASK_TABLES if key == "tasks" else
+                                                               f"must be a table: write [{key}] and KEY = VALUE lines"))
                 merged[key] = {**merged.get(key, {}), **value}
             else:
                 merged[key] = value

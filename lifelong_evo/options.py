@@ -34,6 +34,7 @@ from functools import cache
 from typing import Annotated, Any, Literal, Mapping, get_args, get_origin, get_type_hints
 
 from envs import ConfigError
+from envs.config import shown
 
 TRUE_WORDS = ("true", "yes", "on", "1")
 FALSE_WORDS = ("false", "no", "off", "0")
@@ -115,10 +116,7 @@ def parse_value(kind: Any, value: Any, name: str | None = None) -> Any:
             raise ValueError
         return parsed
     except ValueError:
-        shown = repr(value)
-        if len(shown) > 60:  # a value of thousands of digits: the error stays one readable line
-            shown = shown[:40] + "..." + shown[-10:]
-        refusal = f"{shown} is not {expected(kind)}"
+        refusal = f"{shown(value)} is not {expected(kind)}"  # a value of thousands of digits: one readable line
         raise ConfigError(f"{name}: {refusal}" if name else refusal) from None
 
 

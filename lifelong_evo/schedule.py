@@ -19,9 +19,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from envs import Task, colors_for_tasks
+from envs import TASKS, Task, colors_for_tasks
 
-from .tasks import BUILT_IN_TASKS, task_catalogue
+from .tasks import task_catalogue
 
 NAMED_SCHEDULES = {
     "red-green-red": ("red", "green", "red"),
@@ -57,7 +57,7 @@ def parse_schedule(spec: str, generations: int, tasks: Mapping[str, Task] | None
     """A named schedule (``NAMED_SCHEDULES``) or a list such as ``red:200,red>green:50,green:150``
     (an item without ``:N`` runs for ``generations``; ``a>b`` blends task a into task b), its
     tasks named in ``tasks`` (default: the built-in ones)."""
-    tasks = BUILT_IN_TASKS if tasks is None else tasks
+    tasks = TASKS if tasks is None else tasks
     if spec in NAMED_SCHEDULES:
         return [Phase(tasks[name], generations) for name in NAMED_SCHEDULES[spec]]
     phases = []

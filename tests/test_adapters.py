@@ -334,6 +334,8 @@ def test_bad_options_give_one_clear_error(make):
         make(task="magenta")
     with pytest.raises(ConfigError, match="colour id 9, which this arena does not know"):
         make(task="cyan")
+    with pytest.raises(ConfigError, match="task 'red-two-failed'.*failed_robots"):  # a built-in drift, by name
+        make(task="red-two-failed", n_agents=2)
     with pytest.raises(ConfigError, match="n_agents must be"):
         make(n_agents=0)
 

@@ -4,10 +4,12 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
 import pytest
 import torch
 
-from envs import TASKS, ConfigError, ForagingConfig, ForagingEnv, Rewards, Task, colors_for_tasks, task_by_name
+from envs import (MAX_REWARD, MIN_MOTOR_GAIN, TASKS, ConfigError, ForagingConfig, ForagingEnv, Rewards, Task,
+                  colors_for_tasks, task_by_name)
 
 EIGHT = tuple(range(3, 11))
 
@@ -121,19 +123,36 @@ def test_the_drift_fields_default_to_the_papers():
 
 @pytest.mark.parametrize("fields, message", [
     ({"drop_zone": "north"}, "drop_zone 'north' is not an edge: choose one of top, bottom, left, right"),
-    ({"rewards": {"pick_target": math.inf}}, "reward pick_target must be a finite number"),
-    ({"rewards": {"deliver_other": math.nan}}, "reward deliver_other must be a finite number"),
-    ({"rewards": {"pick_other": "1"}}, "reward pick_other must be a finite number"),
+    ({"rewards": {"pick_target": math.inf}}, "task 'bad': reward pick_target must be a number from -1e6 to 1e6"),
+    ({"rewards": {"deliver_other": math.nan}}, "reward deliver_other must be a number from -1e6 to 1e6"),
+    ({"rewards": {"pick_other": "1"}}, "reward pick_other must be a number"),
+    ({"rewards": {"pick_other": True}}, "reward pick_other must be a number"),
+    # finite in float64, but not in the step's float32 (or not summable in it)
+    ({"rewards": {"pick_target": 1e39}}, "reward pick_target must be a number from -1e6 to 1e6"),
+    ({"rewards": {"pick_target": 3e38, "pick_other": -3e38}}, "reward pick_target must be a number"),
+    ({"rewards": {"deliver_target": 10 ** 400}}, r"reward deliver_target .*, got 1000000000000.*\.\.\.0000000000$"),
     ({"rewards": {"bonus": 1.0}}, r"unknown reward\(s\) \['bonus'\]: valid ones are pick_target, pick_other"),
     ({"failed_robots": -1}, "failed_robots must be an integer >= 0"),
     ({"failed_robots": 1.5}, "failed_robots must be an integer >= 0"),
-    ({"motor_gain": 0.0}, r"motor_gain must be a number in \(0, 1\]"),
-    ({"motor_gain": 1.01}, r"motor_gain must be a number in \(0, 1\]"),
-    ({"motor_gain": math.nan}, r"motor_gain must be a number in \(0, 1\]"),
+    ({"failed_robots": np.bool_(True)}, "failed_robots must be an integer >= 0"),
+    ({"motor_gain": 0.0}, "motor_gain must be a number from 1e-6 to 1"),
+    ({"motor_gain": 1.01}, "motor_gain must be a number from 1e-6 to 1"),
+    ({"motor_gain": math.nan}, "motor_gain must be a number from 1e-6 to 1"),
+    ({"motor_gain": 1e-50}, "motor_gain must be a number from 1e-6 to 1"),  # 0 in float32
+    ({"motor_gain": 10 ** 400}, "motor_gain must be a number from 1e-6 to 1"),
 ])
 def test_bad_drift_fields_are_refused(fields, message):
     with pytest.raises(ConfigError, match=message):
         Task(3, (3, 4), name="bad", **fields)
+
+
+def test_numpy_numbers_are_numbers():
+    task = Task(3, (3, 4), rewards={"pick_other": np.float32(-0.5)}, failed_robots=np.int64(2),
+                motor_gain=np.float32(0.5))
+    assert (task.rewards.pick_other, task.failed_robots, task.motor_gain) == (-0.5, 2, 0.5)
+    assert type(task.failed_robots) is int and type(task.motor_gain) is float and type(task.rewards.pick_other) is float
+    assert Task(3, (3, 4), rewards={"pick_target": MAX_REWARD, "pick_other": -MAX_REWARD},
+                motor_gain=MIN_MOTOR_GAIN).rewards.values()[:2] == (1e6, -1e6)
 
 
 def test_failed_robots_leave_at_least_one_robot_working():
@@ -234,6 +253,7 @@ def test_from_dict_and_task_names():
     with pytest.raises(ConfigError, match="n_robots"):
         ForagingConfig.from_dict({"n_robots": 3})
     assert task_by_name("green") == TASKS["green"]
+    assert task_by_name("red-nest-bottom").drop_zone == "bottom" and task_by_name("red-two-failed").failed_robots == 2
     with pytest.raises(ConfigError, match="magenta"):
         task_by_name("magenta")
     assert colors_for_tasks([TASKS["red"], TASKS["green"]]) == (3, 4, 5, 6)

@@ -22,9 +22,11 @@ from envs.foraging import _remainder, hash31, respawn_cells
 try:
     from oracle import A, OracleState, batched_state_from, respawn_cell
     from oracle import hash31 as py_hash31
+    from test_env_oracle import DRIFTS
 except ImportError:  # tests/ imported as a package
     from tests.oracle import A, OracleState, batched_state_from, respawn_cell
     from tests.oracle import hash31 as py_hash31
+    from tests.test_env_oracle import DRIFTS
 
 F64 = torch.float64
 # inverse of the spec's kinematic matrix: wheels for a wanted (vx, vy, r)
@@ -809,17 +811,17 @@ def test_respawn_stream_matches_a_plain_python_hash():
 
 def test_compiled_step_matches_eager():
     """``compile()`` gives the same rewards, events and discrete state as eager, with pick
-    conflicts and respawns exercised; floats agree to rounding (inductor's vectorised sin and
-    cos differ from eager's in the last bit)."""
+    conflicts and respawns exercised, on a batch that mixes the paper's red with a task of every
+    kind of drift (``DRIFTS``: each nest edge, other reward values, failed robots, a motor gain),
+    each environment with its own; floats agree to rounding (inductor's vectorised sin and cos
+    differ from eager's in the last bit)."""
     config = ForagingConfig(n_boxes=12, max_retrieves=3, duration=60)
     eager, compiled = (ForagingEnv(config, batch_size=24, dtype=F64) for _ in range(2))
     graphs_before = counters["stats"]["unique_graphs"]
     compiled.compile()
     generator = torch.Generator().manual_seed(5)
-    start = eager.sample_state(TASKS["red"], generator)
-    # every agent starts on a stacked cell next to the drop zone, so picks collide and drops follow
-    start.box_pos[:, :4] = torch.tensor([1.0, 10.0], dtype=F64)
-    start.agent_pos[:, :, 0], start.agent_pos[:, :, 1] = 1.2, 10.1
+    tasks = [DRIFTS[b % len(DRIFTS)] for b in range(24)]
+    start = _colliding_start(eager, generator, tasks)
     obs_e, obs_c = eager.reset(state=start), compiled.reset(state=start)
     torch.testing.assert_close(obs_c, obs_e, rtol=0, atol=1e-12)
     events = Counter()
@@ -833,7 +835,10 @@ def test_compiled_step_matches_eager():
         events["picks"] += int((out_e[3]["picked"] >= 0).sum())
         events["conflicts"] += int(((out_e[3]["picked"] >= 0).sum(dim=1) >= 2).sum())
         events["drops"] += int((out_e[3]["dropped"] >= 0).sum())
+        for b, dropped in enumerate((out_e[3]["dropped"] >= 0).sum(dim=1).tolist()):
+            events[f"drops at the {tasks[b].drop_zone}"] += dropped
     assert events["conflicts"] >= 5 and events["drops"] >= 5, events
+    assert all(events[f"drops at the {edge}"] for edge in EDGE_DROPS), events
     # steps with and without conflicts reuse the two graphs: a dtype that differed between the
     # two pick paths would recompile them (and run 100x slower)
     assert counters["stats"]["unique_graphs"] - graphs_before == 2
@@ -843,11 +848,20 @@ def test_compiled_step_matches_eager():
         torch.testing.assert_close(getattr(compiled.state, name), getattr(eager.state, name), rtol=0, atol=1e-9)
 
 
-def _colliding_start(env: ForagingEnv, generator: torch.Generator):
-    """Every agent starts on a stacked cell next to the drop zone: picks collide, drops follow."""
-    start = env.sample_state(TASKS["red"], generator)
-    start.box_pos[:, :4] = torch.tensor([1.0, 10.0], dtype=env.dtype)
-    start.agent_pos[:, :, 0], start.agent_pos[:, :, 1] = 1.2, 10.1
+NEST_SIDE = {"top": ((1.0, 10.0), (1.2, 10.1)), "bottom": ((19.0, 10.0), (18.8, 10.1)),
+             "left": ((10.0, 1.0), (10.1, 1.2)), "right": ((10.0, 19.0), (10.1, 18.8))}
+"""Per nest edge of the paper's arena: a box cell beside the nest, and a point within pick-up reach
+of it (the top edge's carried into each edge's frame)."""
+
+
+def _colliding_start(env: ForagingEnv, generator: torch.Generator, tasks=TASKS["red"]):
+    """Every agent starts on a stacked cell next to its environment's nest (``tasks``: one for all
+    or one per environment): picks collide, drops follow."""
+    start = env.sample_state(tasks, generator)
+    for b, task in enumerate([tasks] * env.batch_size if isinstance(tasks, Task) else tasks):
+        box, agent = NEST_SIDE[task.drop_zone]
+        start.box_pos[b, :4] = torch.tensor(box, dtype=env.dtype)
+        start.agent_pos[b, :, 0], start.agent_pos[b, :, 1] = agent
     return start
 
 

@@ -15,6 +15,7 @@ from envs import TASKS, Rewards
 from lifelong_evo import loop
 from lifelong_evo.commands.cli import build_parser, main
 from lifelong_evo.commands.flags import resolve_run_config
+from lifelong_evo.commands.grid import build_grid
 from lifelong_evo.schedule import NAMED_SCHEDULES, parse_schedule
 
 SOUTH = """
@@ -51,13 +52,38 @@ def test_a_task_file_defines_tasks_the_schedule_names(tmp_path):
     assert phases[0].task is TASKS["red"] or phases[0].task == TASKS["red"]
     blended = configured("--tasks", task_file(tmp_path, SOUTH), "--schedule", "red:2,red>red-south:3").phases()
     assert blended[1].source == TASKS["red"] and blended[1].task == south
+    # a task the schedule leaves unused may have colours the run's arena (the schedule's) lacks
+    dark = SOUTH + "[tasks.dark]\ntarget = 'black'\nseason = ['black', 'white']\n"
+    assert configured("--tasks", task_file(tmp_path, dark), "--schedule", "red-south").env_config().colors == (3, 4)
 
 
 def test_a_config_file_holds_task_tables_and_the_flag_wins(tmp_path):
-    config_file = task_file(tmp_path, 'schedule = "red:2,red-south:2"\n' + SOUTH, "run.toml")
+    # with a byte-order mark, as some Windows editors save UTF-8 (tomllib alone refuses it)
+    text = 'schedule = "red:2,red-south:2"\n' + SOUTH
+    config_file = task_file(tmp_path, b"\xef\xbb\xbf" + text.encode(), "run.toml")
     assert configured("--config", config_file).phases()[1].task.drop_zone == "bottom"
     other = task_file(tmp_path, SOUTH.replace('"bottom"', '"left"'))
     assert configured("--config", config_file, "--tasks", other).phases()[1].task.drop_zone == "left"
+
+
+def test_a_sweep_file_holds_task_tables_and_the_flag_adds_its_own(tmp_path, capsys):
+    sweep = ('schedule = "red:2,red-south:2"\n[grid]\nseed = [1, 2]\n' + SOUTH
+             + "[tasks.spare]\ntarget = 'green'\nseason = ['green', 'yellow']\n")
+    argv = ["sweep", "--config", task_file(tmp_path, sweep, "sweep.toml"), "--preset", "smoke", "--out", str(tmp_path)]
+    trials = build_grid(build_parser().parse_args(argv)).trials
+    assert [trial.name for trial in trials] == ["seed1", "seed2"]
+    assert all(trial.config.phases()[1].task.drop_zone == "bottom" and "spare" in trial.config.tasks for trial in trials)
+    west_file = task_file(tmp_path, SOUTH.replace('"bottom"', '"left"'))
+    west = build_grid(build_parser().parse_args([*argv, "--tasks", west_file]))
+    assert west.trials[0].config.phases()[1].task.drop_zone == "left" and "spare" in west.trials[0].config.tasks
+    for bad, message in (("tasks = 3\n", r"tasks in \S+ must be \[tasks.NAME\] tables"),
+                         ("[grid]\nseed = [1, 2]\ntasks = [{}]\n", r"tasks in \[grid\] of \S+: every trial defines"),
+                         ("[grid]\nvariants = [{ tasks = {} }]\n", r"tasks in \[grid\] variants of \S+: every trial")):
+        assert main(["sweep", "--config", task_file(tmp_path, bad, "bad.toml"), "--out", str(tmp_path / "bad"),
+                     "--dry-run"]) == 2
+        err = capsys.readouterr().err
+        assert re.search(f"^error: {message}", err) and err.count("\n") == 1, err
+    assert not (tmp_path / "bad").exists()
 
 
 def test_the_named_drift_schedules():
@@ -99,19 +125,43 @@ BAD_FILES = {
     "nest edge": (SOUTH.replace('"bottom"', '"north"'), "drop_zone 'north' is not an edge: choose one of top, bottom"),
     "too many failed": (SOUTH.replace("failed_robots = 1", "failed_robots = 5"),
                         "failed_robots=5, but at least one of the 5 robots must work: use 0 to 4"),
+    "too many failed, unused": (SOUTH + "[tasks.spare]\ntarget = 'red'\nseason = ['red', 'blue']\nfailed_robots = 5\n",
+                                "task 'spare': failed_robots=5, but at least one of the 5 robots must work"),
+    "target outside season": (SOUTH.replace('season = ["red", "blue"]', 'season = ["blue"]'),
+                              r"task 'red-south': target red is not in its season \[blue\]: add red to the season"),
     "negative failed": (SOUTH.replace("failed_robots = 1", "failed_robots = -1"), "failed_robots must be an integer >= 0"),
-    "infinite reward": (SOUTH.replace("pick_other = -2.5", "pick_other = -inf"), "reward pick_other must be a finite number"),
-    "nan reward": (SOUTH.replace("deliver_other = -1", "deliver_other = nan"), "reward deliver_other must be a finite"),
+    "infinite reward": (SOUTH.replace("pick_other = -2.5", "pick_other = -inf"),
+                        "task 'red-south': reward pick_other must be a number from -1e6 to 1e6"),
+    "nan reward": (SOUTH.replace("deliver_other = -1", "deliver_other = nan"), "reward deliver_other must be a number"),
+    # finite as Python floats, but none (or no sum of them) is in the step's float32
+    "reward beyond float32": (SOUTH.replace("pick_other = -2.5", "pick_other = 1e39"), "reward pick_other must be a"),
+    "rewards at float32's edge": (SOUTH.replace("pick_other = -2.5", "pick_target = 3e38, pick_other = -3e38"),
+                                  "task 'red-south': reward pick_target must be a number from -1e6 to 1e6"),
+    "401-digit reward": (SOUTH.replace("pick_other = -2.5", f"pick_other = {10 ** 400}"),
+                         r"reward pick_other must be a number from -1e6 to 1e6 .*, got 1000.*\.\.\.0000000000$"),
+    "motor gain 0 in float32": (SOUTH.replace("motor_gain = 0.8", "motor_gain = 1e-50"),
+                                "task 'red-south': motor_gain must be a number from 1e-6 to 1"),
     "unknown reward": (SOUTH.replace("deliver_other", "deliver_late"), r"unknown reward\(s\) \['deliver_late'\]"),
-    "motor gain zero": (SOUTH.replace("motor_gain = 0.8", "motor_gain = 0"), r"motor_gain must be a number in \(0, 1\]"),
-    "motor gain above one": (SOUTH.replace("motor_gain = 0.8", "motor_gain = 1.5"), r"motor_gain must be a number in \(0, 1\]"),
+    "motor gain zero": (SOUTH.replace("motor_gain = 0.8", "motor_gain = 0"), "motor_gain must be a number from 1e-6 to 1"),
+    "motor gain above one": (SOUTH.replace("motor_gain = 0.8", "motor_gain = 1.5"), "motor_gain must be a number from"),
     "unknown colour": (SOUTH.replace('target = "red"', 'target = "pink"'), "target 'pink' is no colour: use one of red"),
     "no season": (SOUTH.replace('season = ["red", "blue"]', ""), "task 'red-south' needs season"),
     "built-in name": (SOUTH.replace("[tasks.red-south]", "[tasks.red]"),
                       "task 'red' is built in and cannot be defined again: give your task another name"),
+    "built-in name in other case": (SOUTH.replace("[tasks.red-south]", "[tasks.Red]"),
+                                    "task 'Red' differs from the built-in task 'red' only in case or in _ for -"),
+    "built-in name with _": (SOUTH.replace("[tasks.red-south]", "[tasks.red_nest_bottom]"),
+                             "task 'red_nest_bottom' differs from the built-in task 'red-nest-bottom'"),
+    "names one run name": (SOUTH + SOUTH.replace("[tasks.red-south]", "[tasks.RED_south]"),
+                           "tasks 'red-south' and 'RED_south' differ only in case or in _ for -.*rename one of them"),
     "other settings": ("seed = 3\n" + SOUTH, r"holds \['seed'\]: it may hold only \[tasks.NAME\] tables"),
-    "not TOML": ("[tasks.red-south\n", "is not valid TOML"),
-    "not UTF-8": (b"[tasks.x]\ntarget = '\xff'\n", "is not UTF-8 text"),
+    "rewards a word": (SOUTH.replace("rewards = { pick_other = -2.5, deliver_other = -1 }", 'rewards = "high"'),
+                       r"task 'red-south': rewards must be a table of event values, e.g. rewards = \{ pick_other = -2 \}"),
+    "tasks a value": ("tasks = 3\n", r"tasks in task file \S+ must be \[tasks.NAME\] tables, one per task: write e.g. "
+                                     r"\[tasks.red-south\]"),
+    "tasks an array": ("[[tasks]]\ntarget = 'red'\n", r"tasks in task file \S+ must be \[tasks.NAME\] tables"),
+    "not TOML": ("[tasks.red-south\n", r"^error: task file \S+ is not valid TOML"),
+    "not UTF-8": (b"[tasks.x]\ntarget = '\xff'\n", r"^error: task file \S+ is not UTF-8 text \(byte 20 cannot"),
     "no task": ("", "defines no task"),
 }
 
@@ -127,15 +177,21 @@ def test_a_bad_task_file_is_one_line_before_anything_is_written(case, tmp_path, 
     (["--schedule", "red,red-south"], "unknown task 'red-south' in schedule 'red,red-south'.*define it in a "
                                       r"\[tasks.red-south\] table"),
     (["--schedule", "red>blue-north:3"], "unknown task 'blue-north'"),
-    (["--tasks", "/nonexistent/tasks.toml"], "does not exist"),
+    (["--tasks", "/nonexistent/tasks.toml"], "task file /nonexistent/tasks.toml does not exist"),
+    # a built-in task cannot be edited: the fix is a larger swarm or a task of one's own
+    (["--schedule", "robot-failure", "--env", "n_agents=2"], "task 'red-two-failed' is built in with 2 failed robots.*"
+                                                             "raise n_agents to at least 3, or define a task of your own"),
 ])
-def test_a_schedule_naming_an_undefined_task_is_refused(argv, message, tmp_path, capsys, nothing_runs):
+def test_a_schedule_the_arena_cannot_run_is_refused(argv, message, tmp_path, capsys, nothing_runs):
     assert re.search(message, refused(argv, tmp_path / "runs", capsys))
 
 
 def test_a_bad_task_in_a_config_file_is_refused_too(tmp_path, capsys, nothing_runs):
     config_file = task_file(tmp_path, 'schedule = "red-south"\n' + SOUTH.replace('"bottom"', '"up"'), "run.toml")
     assert "drop_zone 'up' is not an edge" in refused(["--config", config_file], tmp_path / "runs", capsys)
+    config_file = task_file(tmp_path, 'tasks = 3\n', "run.toml")
+    assert "tasks in the config file must be [tasks.NAME] tables" in refused(["--config", config_file], tmp_path / "runs",
+                                                                             capsys)
 
 
 # ------------------------------------------------------------------------- config.json, resume

@@ -3,11 +3,17 @@
 ``compare`` and the recording's nest outline."""
 from __future__ import annotations
 
+from pathlib import Path
+
+import pytest
+
+from envs import TASKS
 from lifelong_evo.analysis import figures as plots
 from lifelong_evo.commands.cli import main
 from lifelong_evo.commands.replay import replay
 from lifelong_evo.commands.rerun_recorder import drop_zone_outline
-from lifelong_evo.runs import load_runs
+from lifelong_evo.errors import UserError
+from lifelong_evo.runs import Run, load_runs
 from tests.test_task_files import SOUTH, TINY, task_file
 
 
@@ -29,6 +35,40 @@ def test_every_reader_handles_a_defined_task(tmp_path, capsys):
     assert drop_zone_outline("bottom", 20.0).tolist() == [[0, 19], [20, 19], [20, 20], [0, 20], [0, 19]]
     assert drop_zone_outline("left", 20.0).tolist() == [[0, 0], [1, 0], [1, 20], [0, 20], [0, 0]]
     assert drop_zone_outline("right", 20.0).tolist() == [[19, 0], [20, 0], [20, 20], [19, 20], [19, 0]]
+
+
+def _one_colour_run(names: list[str]) -> Run:
+    """A run (in memory) whose schedule plays ``names``, every one a red task, 2 generations each,
+    with retention of each earlier task measured."""
+    tables = {name: {"target": "red", "season": ["red", "blue"]} for name in names if name not in TASKS}
+    rows = []
+    for index, name in enumerate(names):
+        for generation in range(2 * index, 2 * index + 2):
+            row = {"generation": str(generation), "task": name, "task_index": str(index), "best": "1", "top": "1"}
+            rows.append(row | {f"retention_pop_{other}": "0.5" if k < index else "" for k, other in enumerate(names)})
+    return Run(Path("one-colour"), {"schedule": ",".join(f"{name}:2" for name in names), "generations": 2,
+                                    "tasks": tables}, {}, rows)
+
+
+def test_tasks_of_one_colour_never_share_a_look(tmp_path, monkeypatch):
+    """Six red tasks in one figure: each of the eleven curves (current per task, retention per task
+    but the last) has a line style and marker no other has; a run with more red tasks than looks
+    is refused."""
+    drawn = []
+
+    def band(ax, generations, values, color, linestyle, label, marker=None, markevery=None):
+        drawn.append((label, linestyle, marker))
+        return real_band(ax, generations, values, color, linestyle, label, marker, markevery)
+
+    real_band = plots.band
+    monkeypatch.setattr(plots, "band", band)
+    names = ["red", "red-nest-bottom", "red-two-failed", "red-3", "red-4", "red-5"]
+    assert plots.figure_retention([_one_colour_run(names)], "pop", tmp_path / "six.png", "six red tasks").exists()
+    assert len(drawn) == 11 and len({tuple(look) for _, *look in drawn}) == 11, drawn
+    assert drawn[0] == ("red: current C", "-", None)  # the first task of a colour: the paper's look
+    too_many = _one_colour_run(["red", *(f"red-{i}" for i in range(len(plots.TASK_STYLES)))])
+    with pytest.raises(UserError, match=f"{len(plots.TASK_STYLES) + 1} tasks of one target colour .* plot tells at most"):
+        plots.check_task_looks(too_many)
 
 
 def test_the_recording_draws_failed_robots_and_the_nest_where_the_task_puts_them(tmp_path):

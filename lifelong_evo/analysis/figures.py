@@ -7,8 +7,10 @@ with ``<prefix>`` = ``<algo>-<schedule>-reg<lambda>`` followed by whatever else 
 configuration apart from the others plotted (``runs.config_differences``, e.g. ``-regulariser-ewc``):
 
 ``<prefix>-retention-pop.png``  current performance C (solid) and population retention R_pop
-                                 (dashed, dots where measured) per task colour over generations;
-                                 drifts as grey dashed vertical lines
+                                 (dashed, dots where measured) per task colour over generations
+                                 (a second task of one colour: dash-dot and dotted; later ones
+                                 those again with a marker each: ``TASK_STYLES``); drifts as grey
+                                 dashed vertical lines
 ``<prefix>-retention-top.png``  the top individual's current fitness (solid) and retention
                                  R_top (dashed); without a regulariser its current fitness is C
                                  (both: where summary.json has the ``stability_gap`` block, each
@@ -58,9 +60,16 @@ from ..summary_json import SummaryLayout
 from .tables import sorted_groups
 
 
-TASK_STYLES = (("-", "--"), ("-.", ":"), ((0, (5, 1, 1, 1)), (0, (1, 1))))
-"""The line styles (current performance, retention) of a run's first, second, ... task of one
-target colour: tasks that share a colour (red, and red with the nest at the bottom) stay apart."""
+_RANK_MARKERS = (None, "s", "^", "D", "P", "X", "*", "h", "d", "p", "<", ">", "8", "H")
+"""Markers that set tasks of one colour apart (not ``o``, a measured retention point, nor
+``GAP_MARKER``)."""
+TASK_STYLES = tuple((current, retention, marker) for marker in _RANK_MARKERS
+                    for current, retention in (("-", "--"), ("-.", ":")))
+"""The looks (current performance's line style, retention's line style, marker) of a run's first,
+second, ... task of one target colour, so that tasks sharing a colour (red, and red with the nest
+at the bottom) stay apart: the first two solid/dashed and dash-dot/dotted, each later pair of
+those again with a marker of its own; no two alike. ``plot`` refuses a run with more tasks of one
+colour than there are looks (``check_task_looks``)."""
 
 
 def _task_looks(run: Run | None) -> dict[str, tuple[int, int]]:
@@ -81,9 +90,21 @@ def task_color(task: str, run: Run | None = None) -> tuple[float, float, float]:
 
 
 def task_styles(task: str, run: Run | None = None) -> tuple:
-    """The line styles (current, retention) of ``task`` in ``run`` (``TASK_STYLES``)."""
-    rank = _task_looks(run).get(task, (0, 0))[1]
-    return TASK_STYLES[rank % len(TASK_STYLES)]
+    """The looks (current line style, retention line style, marker) of ``task`` in ``run``
+    (``TASK_STYLES``; ``check_task_looks`` has checked that there is one)."""
+    return TASK_STYLES[_task_looks(run).get(task, (0, 0))[1]]
+
+
+def check_task_looks(run: Run) -> None:
+    """Refuse, before anything is drawn, a run whose schedule has more tasks of one target colour
+    than ``TASK_STYLES`` tells apart."""
+    looks = _task_looks(run)
+    for target in {target for target, _ in looks.values()}:
+        names = [name for name, (colour, _) in looks.items() if colour == target]
+        if len(names) > len(TASK_STYLES):
+            raise UserError(f"{run.path}: the schedule has {len(names)} tasks of one target colour "
+                            f"({', '.join(names)}), and plot tells at most {len(TASK_STYLES)} apart: read this run's "
+                            "metrics.csv (docs/metrics.md) for the others")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -140,8 +161,10 @@ def retention_by_task(group: list[Run], level: str) -> dict[str, tuple[np.ndarra
     return out
 
 
-def band(ax, generations, values, color, linestyle, label, marker=None):
-    """Mean over seeds (rows) and, with several seeds, a min-max band."""
+def band(ax, generations, values, color, linestyle, label, marker=None, markevery=None):
+    """Mean over seeds (rows) and, with several seeds, a min-max band; ``marker`` on every point,
+    or spaced as matplotlib's ``markevery`` says (a measured point's dot small, a task's marker
+    large enough to tell apart)."""
     with np.errstate(all="ignore"):
         import warnings
 
@@ -150,7 +173,7 @@ def band(ax, generations, values, color, linestyle, label, marker=None):
             mean = np.nanmean(values, axis=0)
             low, high = np.nanmin(values, axis=0), np.nanmax(values, axis=0)
     ax.plot(generations, mean, color=color, linestyle=linestyle, label=label, linewidth=1.6, marker=marker,
-            markersize=3)
+            markersize=3 if marker == "o" else 5, markevery=markevery)
     if values.shape[0] > 1:
         ax.fill_between(generations, low, high, color=color, alpha=0.18, linewidth=0)
 
@@ -197,12 +220,15 @@ def figure_retention(group: list[Run], level: str, path: Path, label: str) -> Pa
     label = {"best": "current C", "top": "top individual, current"}[current]
     fig, ax = plt.subplots(figsize=(9, 4.8), constrained_layout=True)
     run = group[0]
+    spaced = 0.04  # a task's marker every 4% of the axes' diagonal along a dense curve
     for task, (generations, values) in current_by_task(group, current).items():
-        band(ax, generations, values, task_color(task, run), task_styles(task, run)[0], f"{task}: {label}")
+        style, _, marker = task_styles(task, run)
+        band(ax, generations, values, task_color(task, run), style, f"{task}: {label}", marker, spaced)
     for task, (generations, values) in retention_by_task(group, level).items():
-        marker = "o" if len(generations) < 40 else None
-        band(ax, generations, values, task_color(task, run), task_styles(task, run)[1],
-             f"{task}: {what.split(' R_')[0]}", marker=marker)
+        _, style, marker = task_styles(task, run)
+        measured = len(generations) < 40  # few points: mark each, with the task's marker or a dot
+        band(ax, generations, values, task_color(task, run), style, f"{task}: {what.split(' R_')[0]}",
+             marker or ("o" if measured else None), None if measured else spaced)
     mark_stability_gaps(ax, group, level)
     draw_drifts(ax, group[0])
     ax.set_xlabel("generation")
@@ -374,6 +400,8 @@ def plot_runs(paths, out: str | Path | None = None) -> list[Path]:
     runs = [r for r in load_runs(paths) if r.metrics]
     if not runs:
         raise UserError("the runs have no metrics.csv rows yet: let a run write some generations first")
+    for run in runs:
+        check_task_looks(run)
     groups = group_runs(runs)
     target = Path(out) if out is not None else Path(os.path.commonpath([r.path.resolve() for r in runs]))
     species = {run.path: run.species_rows() for run in runs}  # read and checked before anything is drawn

@@ -18,6 +18,7 @@ from ..config import PRESETS, RunConfig, load_tasks, load_toml, resolve
 from ..errors import UserError
 from ..options import flag, parse_value, schema
 from ..run_names import check_run_name
+from ..tasks import TASK_TABLES
 from .flags import NESTED
 
 RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in NESTED]
@@ -87,9 +88,10 @@ def _split_assignment(item: str, what: str) -> tuple[str, list[str]]:
 
 
 def _file_layer(path: str):
-    """A sweep TOML: run options (fixed), a [grid] table of lists (axes) with optional
-    ``[grid.<algo>]`` tables (axes and fixed values for that algorithm's trials only), each table
-    with optional ``variants`` (sets of values given together: one axis), and preset/name.
+    """A sweep TOML: run options (fixed), ``[tasks.NAME]`` tables (every trial's, as a run's
+    --config holds them), a [grid] table of lists (axes) with optional ``[grid.<algo>]`` tables
+    (axes and fixed values for that algorithm's trials only), each table with optional
+    ``variants`` (sets of values given together: one axis), and preset/name.
     Returns (axes, fixed, by_algo, preset, name)."""
     from algorithms import REGISTRY
 
@@ -98,7 +100,12 @@ def _file_layer(path: str):
     unknown = sorted(set(values) - allowed)
     if unknown:
         raise UserError(f"unknown key(s) {unknown} in {path}: use run options, [env], [algo_options], "
-                       "[grid], preset and name")
+                       "[tasks.NAME], [grid], preset and name")
+
+    def no_tasks_axis(where: str) -> None:
+        raise UserError(f"tasks in {where} of {path}: every trial defines the same tasks: write them as "
+                        "[tasks.NAME] tables outside [grid] (or give --tasks FILE), and vary the schedule that "
+                        "names them")
     axes: dict[str, list[Any]] = {}
     fixed: dict[str, Any] = {}
     by_algo: dict[str, tuple[dict[str, list[Any]], dict[str, Any]]] = {}
@@ -127,6 +134,8 @@ def _file_layer(path: str):
         for variant in listed:
             values: dict[str, Any] = {}
             for key, value in variant.items():
+                if key == "tasks":
+                    no_tasks_axis(f"{where} variants")
                 if key in NESTED and isinstance(value, dict):
                     values.update((f"{key}.{sub}", subvalue) for sub, subvalue in value.items())
                 elif key in RUN_FIELDS and key != "algo":
@@ -142,6 +151,8 @@ def _file_layer(path: str):
         for gkey, gvalue in table.items():
             if gkey == VARIANTS:
                 axes[VARIANTS] = variants(gvalue, where)
+            elif gkey == "tasks":
+                no_tasks_axis(where)
             elif gkey in NESTED and isinstance(gvalue, dict):
                 for sub, subvalue in gvalue.items():
                     put(f"{gkey}.{sub}", subvalue, True, axes, fixed)
@@ -171,6 +182,10 @@ def _file_layer(path: str):
                 raise UserError(f"{key} in {path} must be a table: write [{key}]")
             for sub, subvalue in value.items():
                 put(f"{key}.{sub}", subvalue, False, axes, fixed)
+        elif key == "tasks":  # a table of tables, taken whole: each trial's configuration defines them
+            if not isinstance(value, dict):
+                raise UserError(f"tasks in {path} {TASK_TABLES}")
+            fixed[key] = value
         else:
             put(key, value, False, axes, fixed)
     return axes, fixed, by_algo, values.get("preset"), values.get("name")
@@ -227,8 +242,8 @@ def build_grid(args: argparse.Namespace) -> Grid:
         for item in getattr(args, setter[2:]):
             sub, values = _split_assignment(item, setter)
             put(f"{nested}.{sub}", values)
-    if getattr(args, "tasks_file", None):  # every trial defines the file's tasks
-        put("tasks", [load_tasks(args.tasks_file)])
+    if getattr(args, "tasks_file", None):  # every trial defines the file's tasks, and the sweep file's others
+        put("tasks", [{**fixed.get("tasks", {}), **load_tasks(args.tasks_file)}])
     preset = args.preset or preset or "paper"
     if preset not in PRESETS:
         raise UserError(f"unknown preset {preset!r}: choose one of {', '.join(PRESETS)}")
