@@ -253,6 +253,10 @@ class RunConfig:
             raise ConfigError(f"--option {error}") from None
         regulariser, algo_options = resolve_regulariser(algo, config.regulariser, config.algo_options)
         config = replace(config, regulariser=regulariser, algo_options=algo_options)
+        weights = [f"--option {k}={v}" for k, v in algo_options.items() if k in optimizer.lambda_options]
+        if weights and not config.reg:
+            raise ConfigError(f"{weights[0]} weighs --regulariser {regulariser}'s penalty beside lambda, and at --reg 0 "
+                              "no regulariser plays (the run is fine-tuning): give --reg above 0, or drop the option")
         try:
             optimizer.check_population(config.population, options)
         except ValueError as error:

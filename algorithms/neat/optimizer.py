@@ -118,6 +118,7 @@ class NeatOptimizer(Optimizer):
     regularisers = {"gd": {"penalty": "gd"}, "wp": {"penalty": "wp"}, FUNCTIONAL: {}}
     # the functional regulariser reads only the latest reference (reference_export)
     options_used_by = {"lambda_2": ("wp",), "references": ("gd", "wp")}
+    lambda_options = ("lambda_2",)
     # the penalty needs a reference: none of them acts before the first end_task, which appends the
     # task's best genome to reference_genomes whatever they say, and state_dict holds none of them
     after_first_task_options = ("references", "penalty", "lambda_2")
