@@ -316,6 +316,16 @@ def test_the_study_chooses_among_its_grid_with_lambda_0_the_point_of_comparison(
         "lambda 0, not a candidate: 19.50) |" in markdown
 
 
+def test_a_trial_name_keeps_an_option_ending_in_a_digit_apart_from_its_value(tmp_path):
+    """wp's lambda_2 at 0.003 read as lambda_20.003 (lambda_20 = .003) in a trial's name."""
+    sweep_file = tmp_path / "wp.toml"
+    sweep_file.write_text('preset = "smoke"\n[grid]\nseed = [1, 2]\nvariants = [{ reg = 0 }, '
+                          '{ regulariser = "wp", reg = 0.004, algo_options = { lambda_2 = 0.003 } }]\n')
+    grid = build_grid(build_parser().parse_args(["sweep", "--config", str(sweep_file), "--out", str(tmp_path)]))
+    assert [t.name for t in grid.trials] == ["reg0-seed1", "reg0-seed2", "wp-reg0.004-lambda_2=0.003-seed1",
+                                            "wp-reg0.004-lambda_2=0.003-seed2"]
+
+
 def test_variants_give_values_together(tmp_path, capsys):
     """``variants``: each a set of values given together, so an ES's lambda can go with its
     importance (and lambda = 0 run once) where a product of axes would run every pairing."""
