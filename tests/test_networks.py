@@ -242,14 +242,18 @@ def test_the_recording_draws_what_plot_draws(runs):
     assert all(summaries[g].startswith(f"## {describe(views[i])}\n") for i, g in enumerate(END_GENERATIONS))
 
 
-def _titles(monkeypatch) -> dict[str, tuple[str, list[int], list[int]]]:
-    """Each figure plot saves, by file name: its title, and per axes its lines and patches."""
+def _titles(monkeypatch) -> dict[str, tuple[str, list[int], list[int], bool]]:
+    """Each figure plot saves, by file name: its title, per axes its lines and patches, and whether
+    the title lies within the figure's width as drawn."""
     drawn = {}
     save = plots.save
 
     def keep(fig, path):
         axes = fig.axes
-        drawn[path.name] = (axes[0].get_title(), [len(ax.lines) for ax in axes], [len(ax.patches) for ax in axes])
+        fig.canvas.draw()
+        box = axes[0].title.get_window_extent()
+        drawn[path.name] = (axes[0].get_title(), [len(ax.lines) for ax in axes], [len(ax.patches) for ax in axes],
+                            box.x0 >= 0 and box.x1 <= fig.bbox.width)
         return save(fig, path)
 
     monkeypatch.setattr(plots, "save", keep)
@@ -264,8 +268,9 @@ def test_plot_draws_a_png_per_task_end(runs, tmp_path, monkeypatch):
             name = f"{algo}-red-2-green-2-red-2-reg1-network-{end}.png"
             view = _views(runs[0] / algo)[i]
             assert (tmp_path / name).read_bytes().startswith(PNG)
-            title, lines, bars = drawn[name]
+            title, lines, bars, fits = drawn[name]
             assert title.split("\n", 1)[1].replace("\n", " ") == describe(view)
+            assert fits, title  # the ES's narrower figure cut its line off at both sides
             if algo == "neat":
                 assert lines == [len(view.network.connections)]  # one line per enabled connection
             else:
@@ -280,5 +285,5 @@ def test_plot_of_a_run_without_reference_files_says_the_reference_is_unknown(run
         path.unlink()
     drawn = _titles(monkeypatch)
     assert main(["plot", str(old), "--out", str(tmp_path / "figures")]) == 0
-    title, _, _ = drawn["sep-cmaes-red-2-green-2-red-2-reg1-network-task1-green.png"]
+    title, _, _, _ = drawn["sep-cmaes-red-2-green-2-red-2-reg1-network-task1-green.png"]
     assert "reference unknown (no task1-green-reference" in title and "distance" not in title

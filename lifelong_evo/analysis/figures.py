@@ -326,7 +326,11 @@ def figure_network(view: NetworkView, path: Path, label: str) -> Path:
             ax.bar(layers, [(a + 1) * b for a, b in zip(sizes, sizes[1:])], color="tab:gray")
             ax.set_ylabel("parameters (reference unknown)")
         ax.set_xlabel("layer (inputs -> outputs)")
-    ax.set_title(f"{label}\n{textwrap.fill(describe(view), 120, break_on_hyphens=False)}", fontsize=9)
+    # lines as long as the figure is wide (a 9-point character is about 5.4 points wide): the ES's narrower
+    # figure cut a 120-character line off at both sides
+    width = int(fig.get_figwidth() * 72 / 5.4)
+    title = "\n".join(textwrap.fill(text, width, break_on_hyphens=False) for text in (label, describe(view)))
+    ax.set_title(title, fontsize=9)
     return save(fig, path)
 
 
