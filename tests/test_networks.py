@@ -50,6 +50,24 @@ def test_neat_distance_is_the_regularisers(genetics):
     assert min(expected) == 0.0 and max(expected) > 0
 
 
+def test_a_neat_reference_is_exported_without_a_generation():
+    """README: a task end's reference file is the export format without ``generation``. NEAT's wrote
+    the generation the optimiser was at (not the reference's) into ``network.metadata``, so the same
+    reference exported differently every generation; a top controller's export keeps its own."""
+    optimizer = make_optimizer("neat", obs_dim=31, population_size=20, seed=3, reg=1.0)
+    exports = []
+    for generation in range(3):
+        optimizer.ask()
+        fitness = torch.rand(optimizer.population_size, generator=torch.Generator().manual_seed(generation))
+        optimizer.tell(fitness, fitness)
+        if generation == 0:
+            optimizer.end_task()
+        exports.append(optimizer.reference_export())
+    assert exports[1] == exports[2] and "generation" not in exports[2]["network"]["metadata"]
+    optimizer.ask()
+    assert optimizer.export(0)["network"]["metadata"]["generation"] == 3
+
+
 def test_under_weight_protection_neat_measures_its_two_sums():
     """``wp`` penalises lambda_1 times the squared changes of the weights the reference has plus
     lambda_2 times the squared weights it lacks: the drawing gives those two sums, not the
