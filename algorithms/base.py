@@ -157,6 +157,11 @@ class Optimizer(ABC):
     """Options that only some of ``regularisers`` read, each with those that do (NEAT's ``lambda_2``:
     ``wp``): given under another regulariser, such an option is refused, since it would change
     nothing but the run's configuration."""
+    lambda_options: ClassVar[tuple[str, ...]] = ()
+    """Options that weigh a penalty beside lambda (NEAT's ``lambda_2``: weight protection's weight
+    on the connections the reference lacks, lambda_1 being ``reg``). At ``reg == 0`` no regulariser
+    plays, so giving one is refused (it would promise a penalty the run does not apply); a lambda
+    choice (``compare``'s model-specific lambda) sweeps them with lambda, as one value."""
     after_first_task_options: ClassVar[tuple[str, ...]] = ()
     """Options that act only from the end of the first task, where the regulariser takes its first
     reference: every number before that end, and the whole ``state_dict`` at it (after that

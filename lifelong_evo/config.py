@@ -195,12 +195,7 @@ class RunConfig:
     def default_name(self) -> str:
         """The run directory's name when none is given: ``neat-red-green-red-reg11-seed42``, with a
         regulariser other than the optimiser's default before lambda (``neat-red-green-red-wp-reg0.4-seed42``)."""
-        from algorithms import REGISTRY
-
-        schedule = re.sub(r"[^A-Za-z0-9]+", "-", self.schedule).strip("-")
-        own = resolve_regulariser(self.algo, DEFAULT_REGULARISER, {})[0] if self.algo in REGISTRY else None
-        regulariser = "" if self.regulariser in (own, DEFAULT_REGULARISER) else f"-{self.regulariser}"
-        return f"{self.algo}-{schedule}{regulariser}-reg{self.reg:g}-seed{self.seed}"
+        return f"{name_stem(self.algo, self.schedule, self.regulariser, self.reg)}-seed{self.seed}"
 
     def phases(self):
         return parse_schedule(self.schedule, self.generations, task_catalogue(self.tasks))
@@ -253,6 +248,10 @@ class RunConfig:
             raise ConfigError(f"--option {error}") from None
         regulariser, algo_options = resolve_regulariser(algo, config.regulariser, config.algo_options)
         config = replace(config, regulariser=regulariser, algo_options=algo_options)
+        weights = [f"--option {k}={v}" for k, v in algo_options.items() if k in optimizer.lambda_options]
+        if weights and not config.reg:
+            raise ConfigError(f"{weights[0]} weighs --regulariser {regulariser}'s penalty beside lambda, and at --reg 0 "
+                              "no regulariser plays (the run is fine-tuning): give --reg above 0, or drop the option")
         try:
             optimizer.check_population(config.population, options)
         except ValueError as error:
@@ -319,6 +318,23 @@ class RunConfig:
         if unknown:
             raise ConfigError(f"unknown option(s) {unknown} in {source}: valid ones are {sorted(known)}")
         return cls(**values)
+
+
+def default_regulariser(algo: Any) -> str:
+    """The regulariser a run of ``algo`` applies where it names none and its options choose none
+    (NEAT ``gd``, an ES ``l2``); ``default`` for an optimiser that names none or is not registered."""
+    from algorithms import REGISTRY
+
+    return resolve_regulariser(algo, DEFAULT_REGULARISER, {})[0] if algo in REGISTRY else DEFAULT_REGULARISER
+
+
+def name_stem(algo: Any, schedule: Any, regulariser: Any, reg: float) -> str:
+    """``neat-red-green-red-reg11``, with a regulariser other than the algorithm's default before
+    lambda (``neat-red-green-red-wp-reg0.4``): a run's default name without its seed, and the
+    prefix of ``plot``'s files."""
+    schedule = re.sub(r"[^A-Za-z0-9]+", "-", str(schedule)).strip("-")
+    named = "" if regulariser in (default_regulariser(algo), DEFAULT_REGULARISER) else f"-{regulariser}"
+    return f"{algo}-{schedule}{named}-reg{reg:g}"
 
 
 def resolve_regulariser(algo: str, regulariser: str, algo_options: dict[str, Any]) -> tuple[str, dict[str, Any]]:

@@ -18,7 +18,7 @@ import numpy as np
 
 from algorithms import REGISTRY
 
-from .config import RunConfig
+from .config import RunConfig, default_regulariser
 from .errors import RunDirError
 from .json_files import read_json
 from .metrics_csv import METRICS_FILE, SPECIES_COLUMNS, SPECIES_FILE, read_metrics
@@ -131,19 +131,24 @@ BASELINES_OFF = {key: getattr(RunConfig(), key) for key in RunConfig.BASELINE_SE
 def config_differences(config: dict[str, Any], others: list[dict[str, Any]]) -> list[str]:
     """What sets ``config`` apart from ``others`` beyond algorithm, lambda and schedule, as
     ``KEY=VALUE`` items: an algorithm option only among runs of the same algorithm, each option
-    and environment setting by itself (``genetics=2.0``, ``env.see_other_agents=True``). A
-    regulariser's option only against runs that have one (not those at ``reg == 0``), the
-    regulariser itself (``regulariser=wp``) likewise and among runs of the same algorithm, in place
-    of the options that choose it (``importance``), a baseline
-    setting (``RunConfig.BASELINE_SETTINGS``) only where it is on: fine-tuning is the plain label,
-    a baseline ``rehearsal=0.3`` or ``joint=True``."""
+    and environment setting by itself (``genetics=2.0``, ``env.see_other_agents=True``). The
+    regulariser (``regulariser=wp``, in place of the options that choose it, such as
+    ``importance``) wherever it is one (``reg > 0``) other than its family's default, so that
+    NEAT's and sep-CMA-ES's ``functional`` rows both say so, and where another run of the same
+    algorithm has another; a regulariser's option only against runs that have one (not those at
+    ``reg == 0``), and only where the row's regulariser reads it (``Optimizer.options_used_by``: a
+    ``functional`` row names no ``lambda_2``). A baseline setting (``RunConfig.BASELINE_SETTINGS``)
+    only where it is on: fine-tuning is the plain label, a baseline ``rehearsal=0.3`` or
+    ``joint=True``."""
     mine = configuration_of(config)
     theirs = [configuration_of(o) for o in others]
     same_algo = [t for t, o in zip(theirs, others) if o.get("algo") == config.get("algo")]
     algo = REGISTRY.get(str(config.get("algo")))
     regularizer_only = set(algo.regularizer_options) if algo is not None else set()
     # the options that choose a regulariser (an ES's importance): its label is regulariser=NAME
-    choosing = {key for options in getattr(algo, "regularisers", {}).values() for key in options}
+    choosing = algo.choosing_options() if algo is not None else frozenset()
+    # and those only other regularisers read (all of them at lambda 0, where none plays)
+    unread = {name for name, users in getattr(algo, "options_used_by", {}).items() if mine.get("regulariser") not in users}
 
     def differs(settings: dict[str, Any], name: str, value: Any, is_option: bool) -> bool:
         if is_option and name in regularizer_only and name not in settings:
@@ -158,11 +163,12 @@ def config_differences(config: dict[str, Any], others: list[dict[str, Any]]) -> 
         if isinstance(value, dict):
             prefix = "env." if key in ("env", "env_resolved") else ""
             differences += [f"{prefix}{name}={value[name]}" for name in sorted(value)
-                            if not (is_option and name in choosing)
+                            if not (is_option and (name in choosing or name in unread))
                             and any(differs(t.get(key, {}), name, value[name], is_option) for t in compared)]
         elif key in RunConfig.BASELINE_SETTINGS and value == BASELINES_OFF[key]:
             continue
-        elif any(t.get(key) != value for t in compared if key in t or key != "regulariser"):  # runs with one
+        elif (key == "regulariser" and value != default_regulariser(config.get("algo"))) or any(
+                t.get(key) != value for t in compared if key in t or key != "regulariser"):  # runs with one
             differences.append(f"{key}={value}")
     return differences
 

@@ -133,6 +133,12 @@ CUDA = torch.cuda.is_available()
     # an option that only another regulariser reads (Optimizer.options_used_by)
     (["--option", "lambda_2=0.5"], "--option lambda_2=0.5 is read only by --regulariser wp, and this run's is 'gd': "
                                    "drop the option, or give --regulariser wp"),
+    # lambda_2 weighs weight protection's penalty beside lambda_1 (--reg): at --reg 0 it would promise a penalty that
+    # no run applies (a lambda-0 run is fine-tuning), its default stated included
+    (["--regulariser", "wp", "--reg", "0", "--option", "lambda_2=0.5"],
+     "--option lambda_2=0.5 weighs --regulariser wp's penalty beside lambda, and at --reg 0 no regulariser plays (the "
+     "run is fine-tuning): give --reg above 0, or drop the option"),
+    (["--option", "penalty=wp", "--option", "lambda_2=0.3"], "--option lambda_2=0.3 weighs --regulariser wp's penalty"),
     (["--regulariser", "functional", "--option", "references=2"],
      "--option references=2 is read only by --regulariser gd or wp, and this run's is 'functional': drop the option, "
      "or give --regulariser gd"),

@@ -684,9 +684,10 @@ def _another_value(options_class, name: str) -> str:
 @pytest.mark.parametrize("algo", [name for name, cls in REGISTRY.items() if cls.regularizer_options])
 def test_without_a_regulariser_its_options_change_no_controller(tmp_path, algo):
     """Why ``compare`` holds runs at lambda 0 that differ only in ``regularizer_options`` for one
-    configuration: every number but the regulariser's distance diagnostics is the same."""
+    configuration: every number but the regulariser's distance diagnostics is the same. (An option
+    that weighs a penalty beside lambda, ``lambda_options``, is refused at lambda 0: test_bad_input.)"""
     cls = REGISTRY[algo]
-    changed = [arg for name in cls.regularizer_options
+    changed = [arg for name in cls.regularizer_options if name not in cls.lambda_options
                for arg in ("--option", f"{name}={_another_value(cls.Options, name)}")]
     for name, extra in (("default", []), ("changed", changed)):
         assert main(["--algo", algo, "--preset", "smoke", "--schedule", "red:2,green:4,red:2", "--env", "duration=60",

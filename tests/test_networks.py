@@ -50,6 +50,24 @@ def test_neat_distance_is_the_regularisers(genetics):
     assert min(expected) == 0.0 and max(expected) > 0
 
 
+def test_a_neat_reference_is_exported_without_a_generation():
+    """README: a task end's reference file is the export format without ``generation``. NEAT's wrote
+    the generation the optimiser was at (not the reference's) into ``network.metadata``, so the same
+    reference exported differently every generation; a top controller's export keeps its own."""
+    optimizer = make_optimizer("neat", obs_dim=31, population_size=20, seed=3, reg=1.0)
+    exports = []
+    for generation in range(3):
+        optimizer.ask()
+        fitness = torch.rand(optimizer.population_size, generator=torch.Generator().manual_seed(generation))
+        optimizer.tell(fitness, fitness)
+        if generation == 0:
+            optimizer.end_task()
+        exports.append(optimizer.reference_export())
+    assert exports[1] == exports[2] and "generation" not in exports[2]["network"]["metadata"]
+    optimizer.ask()
+    assert optimizer.export(0)["network"]["metadata"]["generation"] == 3
+
+
 def test_under_weight_protection_neat_measures_its_two_sums():
     """``wp`` penalises lambda_1 times the squared changes of the weights the reference has plus
     lambda_2 times the squared weights it lacks: the drawing gives those two sums, not the
@@ -242,14 +260,18 @@ def test_the_recording_draws_what_plot_draws(runs):
     assert all(summaries[g].startswith(f"## {describe(views[i])}\n") for i, g in enumerate(END_GENERATIONS))
 
 
-def _titles(monkeypatch) -> dict[str, tuple[str, list[int], list[int]]]:
-    """Each figure plot saves, by file name: its title, and per axes its lines and patches."""
+def _titles(monkeypatch) -> dict[str, tuple[str, list[int], list[int], bool]]:
+    """Each figure plot saves, by file name: its title, per axes its lines and patches, and whether
+    the title lies within the figure's width as drawn."""
     drawn = {}
     save = plots.save
 
     def keep(fig, path):
         axes = fig.axes
-        drawn[path.name] = (axes[0].get_title(), [len(ax.lines) for ax in axes], [len(ax.patches) for ax in axes])
+        fig.canvas.draw()
+        box = axes[0].title.get_window_extent()
+        drawn[path.name] = (axes[0].get_title(), [len(ax.lines) for ax in axes], [len(ax.patches) for ax in axes],
+                            box.x0 >= 0 and box.x1 <= fig.bbox.width)
         return save(fig, path)
 
     monkeypatch.setattr(plots, "save", keep)
@@ -264,8 +286,9 @@ def test_plot_draws_a_png_per_task_end(runs, tmp_path, monkeypatch):
             name = f"{algo}-red-2-green-2-red-2-reg1-network-{end}.png"
             view = _views(runs[0] / algo)[i]
             assert (tmp_path / name).read_bytes().startswith(PNG)
-            title, lines, bars = drawn[name]
+            title, lines, bars, fits = drawn[name]
             assert title.split("\n", 1)[1].replace("\n", " ") == describe(view)
+            assert fits, title  # the ES's narrower figure cut its line off at both sides
             if algo == "neat":
                 assert lines == [len(view.network.connections)]  # one line per enabled connection
             else:
@@ -280,5 +303,5 @@ def test_plot_of_a_run_without_reference_files_says_the_reference_is_unknown(run
         path.unlink()
     drawn = _titles(monkeypatch)
     assert main(["plot", str(old), "--out", str(tmp_path / "figures")]) == 0
-    title, _, _ = drawn["sep-cmaes-red-2-green-2-red-2-reg1-network-task1-green.png"]
+    title, _, _, _ = drawn["sep-cmaes-red-2-green-2-red-2-reg1-network-task1-green.png"]
     assert "reference unknown (no task1-green-reference" in title and "distance" not in title

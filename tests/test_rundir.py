@@ -232,17 +232,19 @@ def test_a_run_names_the_commit_of_the_code_it_imports(tmp_path):
         assert library_versions()["lifelong-evo-commit"].split(" + ")[0] == _git(here, "rev-parse", "HEAD")
 
 
+def written(**stated) -> dict:
+    """config.json of a run stated as ``stated`` (``configure``'s keys)."""
+    from lifelong_evo.config import configure
+
+    config = configure(stated, machine=False)
+    return {**config.to_dict(), "env_resolved": config.env_config().to_dict(),
+            "algo_options_resolved": config.algo_options_resolved(), "versions": {"torch": "x"}}
+
+
 def test_the_regulariser_is_one_setting_its_synonym_included():
     """``--regulariser ewc`` and ``--option importance=ewc`` are one configuration, named by the
     regulariser; a config.json written before the setting existed ran its family's default (NEAT
     gd, an ES l2 or its importance); at lambda 0 the regulariser is no setting."""
-    from lifelong_evo.config import configure
-
-    def written(**stated):
-        config = configure(stated, machine=False)
-        return {**config.to_dict(), "env_resolved": config.env_config().to_dict(),
-                "algo_options_resolved": config.algo_options_resolved(), "versions": {"torch": "x"}}
-
     synonym = written(algo="sep-cmaes", reg=1.0, seed=1, algo_options={"importance": "ewc"})
     named = written(algo="sep-cmaes", reg=1.0, seed=2, regulariser="ewc")
     assert synonym["regulariser"] == named["regulariser"] == "ewc"
@@ -262,6 +264,39 @@ def test_the_regulariser_is_one_setting_its_synonym_included():
     at_zero = [written(reg=0.0, seed=1), written(reg=0.0, seed=2, regulariser="wp"), written(reg=0.0, seed=3, regulariser="functional")]
     assert _groups(at_zero) == [[0, 1, 2]]
     assert RunConfig.regulariser_of(old_ewc) == "ewc" and RunConfig.regulariser_of(old_neat) == "gd"
+
+
+def test_a_label_names_a_regulariser_other_than_the_familys_default_and_only_the_options_it_reads():
+    """One configuration per family: the rows of NEAT's and sep-CMA-ES's functional runs both say
+    so (a label named the regulariser only among runs of one algorithm), and so do a NEAT wp and an
+    ES ewc row; a family's default stays unnamed. A functional row names no ``lambda_2`` or
+    ``references`` that only wp (and gd) read, though the runs beside it have other ones (labels
+    compare the options as resolved, defaults filled in). ``plot``'s file prefix names the
+    regulariser as run names do, so a wp and a gd run at one lambda no longer write the same files."""
+    from lifelong_evo.analysis.figures import slug
+    from lifelong_evo.runs import config_differences
+
+    def labels(configs):
+        return [describe_config(c, configs) for c in configs]
+
+    functional = [written(reg=1.0, regulariser="functional"), written(algo="sep-cmaes", reg=1.0, regulariser="functional")]
+    assert labels(functional) == ["neat reg=1 red-green-red regulariser=functional",
+                                  "sep-cmaes reg=1 red-green-red regulariser=functional"]
+    assert labels([written(reg=1.0, regulariser="wp"), written(algo="sep-cmaes", reg=1.0, regulariser="ewc")]) == [
+        "neat reg=1 red-green-red regulariser=wp", "sep-cmaes reg=1 red-green-red regulariser=ewc"]
+    assert labels([written(reg=1.0), written(algo="sep-cmaes", reg=1.0)]) == ["neat reg=1 red-green-red",
+                                                                             "sep-cmaes reg=1 red-green-red"]
+    beside_wp = [functional[0], written(reg=1.0, regulariser="wp", algo_options={"lambda_2": 3.0}),
+                 written(reg=1.0, regulariser="wp")]
+    assert labels(beside_wp) == ["neat reg=1 red-green-red regulariser=functional",
+                                 "neat reg=1 red-green-red lambda_2=3.0 regulariser=wp",
+                                 "neat reg=1 red-green-red lambda_2=0.3 regulariser=wp"]
+    assert labels([functional[0], written(reg=1.0, algo_options={"references": 2})]) == [
+        "neat reg=1 red-green-red regulariser=functional", "neat reg=1 red-green-red references=2 regulariser=gd"]
+    alone = [written(reg=0.4, regulariser="wp"), written(reg=0.4)]
+    assert [slug(c, config_differences(c, [c])) for c in alone] == ["neat-red-green-red-wp-reg0.4",
+                                                                    "neat-red-green-red-reg0.4"]
+    assert slug(alone[0], config_differences(alone[0], alone)) == "neat-red-green-red-wp-reg0.4"
 
 
 def test_an_option_added_since_a_run_was_written_is_its_default(tmp_path):

@@ -257,23 +257,73 @@ def test_model_specific_lambda_selection():
     assert next(row for row in rows if row["metric"] == "C phase 1 (green)")["values"] == [14.0, 16.0]
 
 
-def test_model_specific_lambda_of_each_importance_has_the_unregularised_run_as_candidate():
-    """The families sweep runs lambda 0 once and lambda 100 with either importance: both
-    importances choose between 100 and none, and each m.s. row is named by its importance."""
+def test_model_specific_lambda_has_the_unregularised_run_as_candidate_of_its_own_regulariser():
+    """The families sweep runs lambda 0 once, naming no importance (so the family's default, l2),
+    and lambda 100 with either importance: L2 chooses between 100 and none; for EWC (here run at 10
+    and 100 too) the run without one is the point of comparison, shown, never chosen, and an EWC run
+    at lambda 0 would be its candidate. Each m.s. row is named by its regulariser."""
     base = {"algo": "sep-cmaes", "schedule": "red-green-red", "population": 12}
     runs = []
-    for seed, variant, c1, r_top in [(1, "none", 5.0, 1.0), (1, "l2", 4.0, 3.0), (1, "ewc", 2.0, 1.0),
-                                     (2, "none", 6.0, 2.0), (2, "l2", 3.0, 3.0), (2, "ewc", 7.0, 4.0)]:
+    for seed, variant, reg, c1, r_top in [(1, "none", 0, 5.0, 1.0), (1, "l2", 100, 4.0, 3.0), (1, "ewc", 100, 2.0, 1.0),
+                                          (1, "ewc", 10, 1.0, 1.0), (2, "none", 0, 6.0, 2.0), (2, "l2", 100, 3.0, 3.0),
+                                          (2, "ewc", 100, 7.0, 4.0), (2, "ewc", 10, 1.0, 1.0)]:
         options = {} if variant == "none" else {"importance": variant}
-        config = RunConfig(**base, seed=seed, reg=0.0 if variant == "none" else 100.0, algo_options=options)
-        written = {**config.to_dict(), "algo_options_resolved": config.algo_options_resolved()}
-        runs.append((written, _summary(c1, r_top), f"{variant}-seed{seed}"))
+        config = RunConfig(**base, seed=seed, reg=float(reg), algo_options=options)
+        written = {**config.validate(machine=False).to_dict(), "algo_options_resolved": config.algo_options_resolved()}
+        runs.append((written, _summary(c1, r_top), f"{variant}{reg}-seed{seed}"))
     selections = select_model_specific(runs)
-    chosen = {s["config"]["algo_options_resolved"]["importance"]: [c["tag"] for c in s["choices"]] for s in selections}
-    assert chosen == {"l2": ["l2-seed1", "none-seed2"], "ewc": ["none-seed1", "ewc-seed2"]}
+    chosen = {s["config"]["regulariser"]: [c["tag"] for c in s["choices"]] for s in selections}
+    assert chosen == {"l2": ["l2100-seed1", "none0-seed2"], "ewc": ["ewc100-seed1", "ewc100-seed2"]}
+    ewc = next(s for s in selections if s["config"]["regulariser"] == "ewc")
+    assert ewc["lambdas"] == [10.0, 100.0] and ewc["shared"] == {"reg": 100.0, "means": {10.0: 2.0, 100.0: 7.0},
+                                                                  "lambda_0": 7.0}
     configs = [config for config, _, _ in runs]
     assert sorted(model_specific_label(s["config"], configs) for s in selections) == [
         "sep-cmaes reg=m.s. red-green-red regulariser=ewc", "sep-cmaes reg=m.s. red-green-red regulariser=l2"]
+    at_zero = RunConfig(**base, seed=1, reg=0.0, algo_options={"importance": "ewc"}).validate(machine=False)
+    named = ({**at_zero.to_dict(), "algo_options_resolved": at_zero.algo_options_resolved()}, _summary(9.0, 9.0), "e0")
+    (one_seed,) = [s for s in select_model_specific(runs + [named]) if s["config"]["regulariser"] == "ewc"]
+    assert one_seed["lambdas"] == [0.0, 10.0, 100.0] and [c["tag"] for c in one_seed["choices"]] == ["e0"]
+
+
+def test_the_study_chooses_among_its_grid_with_lambda_0_the_point_of_comparison():
+    """docs/studies/regularisers-and-archive.md, step 1: lambda 0 (the fine-tune run every other run
+    of its seed takes its first task from) is "the choice's point of comparison, not a candidate",
+    and weight protection's (lambda_1, lambda_2) pairs are the swept values, one choice among them.
+    Here lambda 0 scores best on both seeds, wp's second pair and functional's 10 best among theirs."""
+    runs = []
+    for seed in (1, 2):
+        for regulariser, reg, options, c1, r_top in [
+                ("default", 0, {}, 9.0, 9.0), ("wp", 0.4, {"lambda_2": 0.3}, 2.0, 1.0),
+                ("wp", 4, {"lambda_2": 3.0}, 3.0, 2.0), ("functional", 1, {}, 1.0, 1.0), ("functional", 10, {}, 4.0, 1.0)]:
+            config = RunConfig(algo="neat", schedule="red:100,green:100", population=12, seed=seed, reg=float(reg),
+                               regulariser=regulariser, algo_options={"genetics": "0.92", **options})
+            config = config.validate(machine=False)
+            written = {**config.to_dict(), "algo_options_resolved": config.algo_options_resolved()}
+            runs.append((written, _summary(c1 + seed, r_top), f"{regulariser}-{reg}-seed{seed}"))
+    selections = {s["config"]["regulariser"]: s for s in select_model_specific(runs)}
+    assert sorted(selections) == ["functional", "wp"]  # one wp configuration, not one per lambda_2
+    wp, functional = selections["wp"], selections["functional"]
+    assert wp["lambdas"] == [(0.4, 0.3), (4.0, 3.0)] and functional["lambdas"] == [1.0, 10.0]
+    assert [c["reg"] for c in wp["choices"]] == [(4.0, 3.0)] * 2 and wp["shared"]["reg"] == (4.0, 3.0)
+    assert [c["reg"] for c in functional["choices"]] == [10.0] * 2 and functional["shared"]["reg"] == 10.0
+    assert wp["shared"]["lambda_0"] == functional["shared"]["lambda_0"] == 19.5
+    configs = [config for config, _, _ in runs]
+    _, markdown = model_specific_report(list(selections.values()), {tag: summary for _, summary, tag in runs}, configs)
+    assert ("| neat reg=m.s. red:100,green:100 regulariser=wp | 2 | 1: (4, 3), 2: (4, 3) | (4, 3) ((0.4, 0.3): 4.50, "
+            "(4, 3): 6.50; lambda 0, not a candidate: 19.50) |") in markdown
+    assert "| neat reg=m.s. red:100,green:100 regulariser=functional | 2 | 1: 10, 2: 10 | 10 (1: 3.50, 10: 6.50; " \
+        "lambda 0, not a candidate: 19.50) |" in markdown
+
+
+def test_a_trial_name_keeps_an_option_ending_in_a_digit_apart_from_its_value(tmp_path):
+    """wp's lambda_2 at 0.003 read as lambda_20.003 (lambda_20 = .003) in a trial's name."""
+    sweep_file = tmp_path / "wp.toml"
+    sweep_file.write_text('preset = "smoke"\n[grid]\nseed = [1, 2]\nvariants = [{ reg = 0 }, '
+                          '{ regulariser = "wp", reg = 0.004, algo_options = { lambda_2 = 0.003 } }]\n')
+    grid = build_grid(build_parser().parse_args(["sweep", "--config", str(sweep_file), "--out", str(tmp_path)]))
+    assert [t.name for t in grid.trials] == ["reg0-seed1", "reg0-seed2", "wp-reg0.004-lambda_2=0.003-seed1",
+                                            "wp-reg0.004-lambda_2=0.003-seed2"]
 
 
 def test_variants_give_values_together(tmp_path, capsys):

@@ -118,6 +118,7 @@ class NeatOptimizer(Optimizer):
     regularisers = {"gd": {"penalty": "gd"}, "wp": {"penalty": "wp"}, FUNCTIONAL: {}}
     # the functional regulariser reads only the latest reference (reference_export)
     options_used_by = {"lambda_2": ("wp",), "references": ("gd", "wp")}
+    lambda_options = ("lambda_2",)
     # the penalty needs a reference: none of them acts before the first end_task, which appends the
     # task's best genome to reference_genomes whatever they say, and state_dict holds none of them
     after_first_task_options = ("references", "penalty", "lambda_2")
@@ -441,20 +442,23 @@ class NeatOptimizer(Optimizer):
     # ---------------------------------------------------------------------------- export
 
     def reference_export(self) -> dict[str, Any] | None:
-        """The latest task reference (``end_task``), exported as ``export`` does."""
+        """The latest task reference (``end_task``), exported as ``export`` does but without a
+        generation: the one the optimiser is at is not the reference's, and the export stays the
+        same until ``end_task`` takes the next one."""
         return self._export_genome(self.reference_genomes[-1]) if self.reference_genomes else None
 
     def export(self, index: int) -> dict[str, Any]:
         """Genome ``index`` of the last asked population, JSON-serialisable (``_export_genome``)."""
-        return self._export_genome(self.asked_genomes[index])
+        return self._export_genome(self.asked_genomes[index], self.generation)
 
-    def _export_genome(self, genome) -> dict[str, Any]:
+    def _export_genome(self, genome, generation: int | None = None) -> dict[str, Any]:
         """``genome``, JSON-serialisable.
 
         ``genome``: every gene (disabled connections included), enough to rebuild it.
         ``network``: neat-python 2.0's ``neat.export`` JSON of its ``FeedForwardNetwork``
-        (``created_timestamp`` dropped). Under ``unconnected_outputs == "zero"`` the outputs
-        listed in ``zero_outputs`` are 0.0 whatever ``network`` says.
+        (``created_timestamp`` dropped; its ``metadata`` has ``generation`` where given). Under
+        ``unconnected_outputs == "zero"`` the outputs listed in ``zero_outputs`` are 0.0 whatever
+        ``network`` says.
         """
         gc = self.config.genome_config
         layers, _links = genome_layers(genome, gc, self.unconnected_outputs)
@@ -463,7 +467,7 @@ class NeatOptimizer(Optimizer):
             warnings.simplefilter("ignore", DeprecationWarning)
             network = json.loads(export_network_json(
                 neat.nn.FeedForwardNetwork.create(genome, self.config),
-                metadata={"genome_id": genome.key, "generation": self.generation}))
+                metadata={"genome_id": genome.key, **({"generation": generation} if generation is not None else {})}))
         network["metadata"].pop("created_timestamp", None)
         return {
             "format": "neat-python-genome",

@@ -562,7 +562,8 @@ def comparison(paths, episodes: str = "held-out", baseline: dict[str, str] | Non
                                                       for seed, regs in s["left_out"].items()],
                 "one_lambda_for_all_seeds": {
                     "reg": s["shared"]["reg"],
-                    "mean_per_lambda": [{"reg": r, "mean": m} for r, m in s["shared"]["means"].items()]},
+                    "mean_per_lambda": [{"reg": r, "mean": m} for r, m in s["shared"]["means"].items()],
+                    **({"lambda_0_point_of_comparison": s["shared"]["lambda_0"]} if "lambda_0" in s["shared"] else {})},
                 **({"given": s["given"]} if s.get("given") else {})}
                for s in selections]
     return Comparison(rows + ms_rows, markdown + "\n" + ms_markdown, ms_markdown, ms_json)

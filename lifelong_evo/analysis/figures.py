@@ -3,8 +3,9 @@
 
 It reads run directories through ``lifelong_evo.runs`` and only draws. For each group of runs
 that share a configuration (``runs.group_runs``: repetitions that differ in seed or speed settings),
-with ``<prefix>`` = ``<algo>-<schedule>-reg<lambda>`` followed by whatever else sets the
-configuration apart from the others plotted (``runs.config_differences``, e.g. ``-regulariser-ewc``):
+with ``<prefix>`` = ``<algo>-<schedule>-reg<lambda>``, a regulariser other than the family's
+default before ``-reg`` as in run names (``<algo>-<schedule>-wp-reg<lambda>``), followed by whatever
+else sets the configuration apart from the others plotted (``runs.config_differences``, e.g. ``-sigma-0.05``):
 
 ``<prefix>-retention-pop.png``  current performance C (solid) and population retention R_pop
                                  (dashed, dots where measured) per task colour over generations
@@ -49,12 +50,13 @@ import numpy as np
 from algorithms import REGISTRY
 from envs import color_rgb, task_rgb
 
+from ..config import DEFAULT_REGULARISER, name_stem
 from ..errors import UserError
 from ..metrics import CURRENT_LEVELS, current_curve
 from ..metrics_csv import retention_columns
 from ..networks import NetworkView, columns, describe, task_end_views
 from ..rundir import RunDir
-from ..runs import Run, config_differences, describe_config, group_runs, load_runs
+from ..runs import Run, config_differences, configuration_of, describe_config, group_runs, load_runs
 from ..schedule import distinct_tasks, schedule_of
 from ..summary_json import SummaryLayout
 from .tables import sorted_groups
@@ -350,7 +352,11 @@ def figure_network(view: NetworkView, path: Path, label: str) -> Path:
             ax.bar(layers, [(a + 1) * b for a, b in zip(sizes, sizes[1:])], color="tab:gray")
             ax.set_ylabel("parameters (reference unknown)")
         ax.set_xlabel("layer (inputs -> outputs)")
-    ax.set_title(f"{label}\n{textwrap.fill(describe(view), 120, break_on_hyphens=False)}", fontsize=9)
+    # lines as long as the figure is wide (a 9-point character is about 5.4 points wide): the ES's narrower
+    # figure cut a 120-character line off at both sides
+    width = int(fig.get_figwidth() * 72 / 5.4)
+    title = "\n".join(textwrap.fill(text, width, break_on_hyphens=False) for text in (label, describe(view)))
+    ax.set_title(title, fontsize=9)
     return save(fig, path)
 
 
@@ -369,9 +375,13 @@ def save(fig, path: Path) -> Path:
 
 
 def slug(config: dict[str, Any], differences: list[str] = ()) -> str:
-    """A file-name prefix: ``neat-red-green-red-reg11``, then what sets the configuration apart
-    (``config_differences``: ``sep-cmaes-red-green-red-reg10-regulariser-ewc``)."""
-    text = "-".join([f"{config.get('algo')}-{config.get('schedule')}-reg{config.get('reg', 0):g}", *differences])
+    """A file-name prefix: ``neat-red-green-red-reg11``, with a regulariser other than the family's
+    default before lambda as in run names (``name_stem``: ``neat-red-green-red-wp-reg0.4``, at lambda
+    > 0, where it is a setting), then what else sets the configuration apart (``config_differences``:
+    ``openai-es-red-green-red-reg0-sigma-0.05``)."""
+    regulariser = configuration_of(config).get("regulariser", DEFAULT_REGULARISER)
+    stem = name_stem(config.get("algo"), config.get("schedule"), regulariser, config.get("reg", 0))
+    text = "-".join([stem, *(item for item in differences if not item.startswith("regulariser="))])
     return re.sub(r"[^A-Za-z0-9.]+", "-", text).strip("-")
 
 

@@ -6,7 +6,9 @@ smaller lambda), chosen on the selection-time figures (the training episodes) an
 configuration of its own with the chosen lambda per seed, its tables held-out where the chosen
 runs have the block; beside it the one lambda for all seeds, the highest mean of the same
 criterion over the seeds (``select_model_specific``, ``model_specific_report``). Every seed chooses
-among the same lambdas: a seed without a finished run of each is left out, and named. A lambda
+among the same lambdas: a seed without a finished run of each is left out, and named. Weight
+protection's (lambda_1, lambda_2) pairs are one swept value each; a lambda-0 run is a candidate of
+its own regulariser's configuration, and beside another's lambdas the point of comparison. A lambda
 given per seed instead (``given_choices``: a paper's own per-seed table) is reported the same way,
 as ``reg=given``. A lambda chosen
 per seed on the seed it is reported on is optimistic: the report says so, and by how much where
@@ -18,8 +20,12 @@ from __future__ import annotations
 import json
 import math
 import re
+from dataclasses import asdict
 from typing import Any
 
+from algorithms import REGISTRY
+
+from ..config import RunConfig
 from ..errors import UserError
 from ..runs import configuration_of, describe_config
 from ..summary_json import SummaryLayout
@@ -64,67 +70,114 @@ def optimism_rows(selection: dict[str, Any], summaries: dict[Any, dict[str, Any]
 
     chosen = row("chosen per seed", [(c["seed"], c["score"], c["tag"]) for c in selection["choices"]])
     seeds = {c["seed"] for c in selection["choices"]}
-    rows = [chosen] + [row(f"lambda {reg:g}, every seed", [(seed, score, tag) for seed, runs in
+    rows = [chosen] + [row(f"lambda {lambda_text(reg)}, every seed", [(seed, score, tag) for seed, runs in
                                                            sorted(selection["candidates"].items()) if seed in seeds
                                                            for score, r, tag in runs if r == reg])
                        for reg in selection["lambdas"]]
     return [r for r in rows if r is not None] if chosen is not None else []
 
 
+def weights_read(config: dict[str, Any]) -> tuple[str, ...]:
+    """The options of a run's regulariser that weigh its penalty beside lambda
+    (``Optimizer.lambda_options`` that the regulariser reads, ``Optimizer.options_used_by``: NEAT's
+    ``lambda_2`` under wp); a lambda choice sweeps them with lambda."""
+    algo = REGISTRY.get(str(config.get("algo")))
+    if algo is None:
+        return ()
+    regulariser = RunConfig.regulariser_of(config)
+    return tuple(name for name in algo.lambda_options if regulariser in algo.options_used_by.get(name, (regulariser,)))
+
+
+def swept_value(config: dict[str, Any]) -> float | tuple[float, ...]:
+    """What a lambda choice chooses among for a run: its lambda, or where its regulariser has
+    weights beside lambda (``weights_read``) lambda with them, ``(lambda_1, lambda_2)`` (all 0 at
+    lambda 0, where no penalty plays)."""
+    names = weights_read(config)
+    reg = float(config["reg"])
+    if not names:
+        return reg
+    options = {**asdict(REGISTRY[config["algo"]].Options()),
+               **(config.get("algo_options_resolved") or config.get("algo_options") or {})}
+    return (reg, *(float(options[name]) if reg else 0.0 for name in names))
+
+
+def lambda_text(value: float | tuple[float, ...]) -> str:
+    """A swept value as the report writes it: ``0.4``, or a pair ``(0.4, 0.3)``."""
+    return f"{value:g}" if isinstance(value, float) else "(" + ", ".join(f"{v:g}" for v in value) + ")"
+
+
+def _without_lambda(config: dict[str, Any]) -> str:
+    """The configuration of a run without what a lambda choice sweeps (``swept_value``)."""
+    rest = {k: v for k, v in configuration_of(config).items() if k != "reg"}
+    names = weights_read(config)
+    for key in ("algo_options", "algo_options_resolved"):
+        if isinstance(rest.get(key), dict):
+            rest[key] = {k: v for k, v in rest[key].items() if k not in names}
+    return json.dumps(rest, sort_keys=True, default=str)
+
+
 def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]) -> list[dict[str, Any]]:
     """The model-specific lambda: ``runs`` are (config.json dict, summary.json dict, tag) triples;
     for each configuration without lambda that was run with several lambdas, and each of its seeds
     that ran every one of them (and has reached the end of phase 1), the run whose lambda maximises
-    ``selection_score`` (ties: the smaller lambda). A run without
-    regulariser (lambda 0) is a candidate of every such configuration it differs from only in the
-    regulariser's options (``Optimizer.regularizer_options``: L2 and EWC-style importance both
-    choose between their lambdas and none).
+    ``selection_score`` (ties: the smaller lambda). What is chosen among is ``swept_value``: lambda,
+    or for weight protection the pair (lambda_1, lambda_2), one value. A run without regulariser
+    (lambda 0) that differs from such a configuration only in the regulariser and its options
+    (``Optimizer.regularizer_options``) is a candidate where its regulariser (config.json's: the
+    family's default where it named none) is the configuration's (NEAT's gd and lambda 0; an ES's
+    l2 and lambda 0), and otherwise the choice's point of comparison, not a candidate (wp,
+    functional or ewc beside a lambda-0 run that named none: the lambda is chosen among the grid's).
 
     Returns one dict per such configuration with at least one such seed: ``config`` (the config
     of one of its regularised runs), ``lambdas`` (ascending), ``choices``, one per such seed in
-    ascending order: ``seed``, ``reg``, ``score``, ``tag``; ``shared``, the one lambda for every
-    seed: the one whose mean ``selection_score`` over those seeds is highest (ties: the smaller
-    lambda), with ``means`` (lambda -> that mean); ``left_out``: the seeds that ran only some of
-    the lambdas, with those they ran (every seed chooses among the same lambdas, or a seed that
-    ran fewer would have an easier choice); and ``candidates``: per chosen seed, every run's
-    (score, lambda, tag)."""
-    def without_lambda(config: dict[str, Any]) -> str:
-        rest = {k: v for k, v in configuration_of(config).items() if k != "reg"}
-        return json.dumps(rest, sort_keys=True, default=str)
-
+    ascending order: ``seed``, ``reg`` (its swept value), ``score``, ``tag``; ``shared``, the one
+    lambda for every seed: the one whose mean ``selection_score`` over those seeds is highest (ties:
+    the smaller lambda), with ``means`` (lambda -> that mean) and, where every such seed has a
+    lambda-0 run that is the point of comparison, ``lambda_0`` (its mean); ``left_out``: the seeds
+    that ran only some of the lambdas, with those they ran (every seed chooses among the same
+    lambdas, or a seed that ran fewer would have an easier choice); and ``candidates``: per chosen
+    seed, every run's (score, lambda, tag)."""
     groups: dict[str, dict[str, Any]] = {}
-    base_of: dict[str, str] = {}
-    # regularised runs first, so each lambda-0 run finds every configuration it belongs to
-    for config, summary, tag in sorted(runs, key=lambda run: not float(run[0]["reg"])):
-        base = without_lambda({**config, "reg": 0})
+    # regularised runs first: they make the configurations, which each lambda-0 run then joins
+    ordered = sorted(runs, key=lambda run: not float(run[0]["reg"]))
+    for config, summary, tag in ordered:
+        score = selection_score(summary)
+        scored = score is not None and math.isfinite(score)
+        seed, value = config.get("seed"), swept_value(config)
         if float(config["reg"]):
-            keys = [without_lambda(config)]
-            base_of[keys[0]] = base
+            found = [groups.setdefault(_without_lambda(config), {
+                "values": set(), "by_seed": {}, "comparison": {}, "config": config,
+                "base": _without_lambda({**config, "reg": 0}), "regulariser": RunConfig.regulariser_of(config)})]
+            compared = []
         else:
-            keys = [key for key, its_base in base_of.items() if its_base == base] or [base]
-        for key in keys:
-            group = groups.setdefault(key, {"regs": set(), "by_seed": {}, "config": config})
-            group["regs"].add(float(config["reg"]))
-            score = selection_score(summary)
-            if score is not None and math.isfinite(score):
-                group["by_seed"].setdefault(config["seed"], []).append((score, float(config["reg"]), tag))
+            base, regulariser = _without_lambda(config), RunConfig.regulariser_of(config)
+            found = [g for g in groups.values() if g["base"] == base and g["regulariser"] == regulariser]
+            compared = [g for g in groups.values() if g["base"] == base and g["regulariser"] != regulariser]
+        for group in found:
+            group["values"].add(value)
+            if scored:
+                group["by_seed"].setdefault(seed, []).append((score, value, tag))
+        for group in compared:
+            if scored:
+                group["comparison"][seed] = score
     result = []
     for group in groups.values():
-        lambdas = sorted(group["regs"])
-        ran = {seed: {reg for _, reg, _ in runs_of_seed} for seed, runs_of_seed in group["by_seed"].items()}
+        lambdas = sorted(group["values"])
+        ran = {seed: {value for _, value, _ in runs_of_seed} for seed, runs_of_seed in group["by_seed"].items()}
         # every seed chooses among the same lambdas: a seed that ran fewer would have an easier choice
-        complete = sorted(seed for seed in ran if ran[seed] == group["regs"])
+        complete = sorted(seed for seed in ran if ran[seed] == group["values"])
         if len(lambdas) < 2 or not complete:
             continue
         choices = []
         for seed in complete:
-            score, reg, tag = max(group["by_seed"][seed], key=lambda c: (c[0], -c[1]))
-            choices.append({"seed": seed, "reg": reg, "score": score, "tag": tag})
-        means = {reg: sum(score for seed in complete for score, r, _ in group["by_seed"][seed] if r == reg)
-                 / len(complete) for reg in lambdas}
-        best = max(means, key=lambda reg: (means[reg], -reg))
-        result.append({"config": group["config"], "lambdas": lambdas, "choices": choices,
-                       "shared": {"reg": best, "means": means},
+            score, value, tag = min(group["by_seed"][seed], key=lambda c: (-c[0], c[1]))
+            choices.append({"seed": seed, "reg": value, "score": score, "tag": tag})
+        means = {value: sum(score for seed in complete for score, v, _ in group["by_seed"][seed] if v == value)
+                 / len(complete) for value in lambdas}
+        shared = {"reg": min(means, key=lambda value: (-means[value], value)), "means": means}
+        if group["comparison"] and all(seed in group["comparison"] for seed in complete):
+            shared["lambda_0"] = sum(group["comparison"][seed] for seed in complete) / len(complete)
+        result.append({"config": group["config"], "lambdas": lambdas, "choices": choices, "shared": shared,
                        "left_out": {seed: sorted(ran[seed]) for seed in sorted(ran) if seed not in complete},
                        "candidates": {seed: group["by_seed"][seed] for seed in complete}})
     return result
@@ -135,10 +188,10 @@ def given_choices(selection: dict[str, Any], lambda_per_seed: dict[int, float]) 
     e.g. the paper's own per-seed table), in ascending seed order; UserError where a named seed has
     no finished run of its lambda among the seeds the selection chose for."""
     runs = {seed: {reg: (score, tag) for score, reg, tag in found} for seed, found in selection["candidates"].items()}
-    missing = [f"seed {seed} lambda {reg:g}" for seed, reg in sorted(lambda_per_seed.items())
+    missing = [f"seed {seed} lambda {lambda_text(reg)}" for seed, reg in sorted(lambda_per_seed.items())
                if reg not in runs.get(seed, {})]
     if missing:
-        lambdas = ", ".join(f"{reg:g}" for reg in selection["lambdas"])
+        lambdas = ", ".join(lambda_text(reg) for reg in selection["lambdas"])
         raise UserError(f"--per-seed-lambda: no finished run of {', '.join(missing)} among the seeds that finished every "
                         f"lambda of {lambdas} ({', '.join(str(seed) for seed in runs) or 'none'}): name those seeds, "
                         "each with one of those lambdas")
@@ -165,16 +218,20 @@ def parse_per_seed_lambda(text: str | None) -> dict[int, float] | None:
 
 
 def model_specific_label(config: dict[str, Any], all_configs: list[dict[str, Any]]) -> str:
-    """``compare``'s label of the configuration with ``reg=m.s.``, e.g. ``neat reg=m.s. red-green-red``."""
-    return re.sub(r"reg=\S+", "reg=m.s.", describe_config(config, all_configs), count=1)
+    """``compare``'s label of the configuration with ``reg=m.s.``, e.g. ``neat reg=m.s. red-green-red``,
+    naming none of the weights chosen with lambda (``weights_read``: wp's ``lambda_2``)."""
+    names = weights_read(config)
+    unswept = {**config, **{key: {k: v for k, v in config[key].items() if k not in names}
+                            for key in ("algo_options", "algo_options_resolved") if isinstance(config.get(key), dict)}}
+    return re.sub(r"reg=\S+", "reg=m.s.", describe_config(unswept, all_configs), count=1)
 
 
 def left_out_note(selection: dict[str, Any]) -> str:
     """The seeds a selection left out, with the lambdas each finished; empty if none."""
     if not selection["left_out"]:
         return ""
-    every = ", ".join(f"{reg:g}" for reg in selection["lambdas"])
-    seeds = ", ".join(f"{seed} (finished {' and '.join(f'{reg:g}' for reg in regs)})"
+    every = ", ".join(lambda_text(reg) for reg in selection["lambdas"])
+    seeds = ", ".join(f"{seed} (finished {' and '.join(lambda_text(reg) for reg in regs)})"
                       for seed, regs in selection["left_out"].items())
     return f". Left out, as they did not finish every lambda of {every}: seeds {seeds}"
 
@@ -193,17 +250,19 @@ def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any,
     for selection in selections:
         label = model_specific_label(selection["config"], all_configs)
         shared = selection["shared"]
-        one = f"{shared['reg']:g} (" + ", ".join(f"{reg:g}: {mean:.2f}" for reg, mean in shared["means"].items()) + ")"
+        compared = f"; lambda 0, not a candidate: {shared['lambda_0']:.2f}" if "lambda_0" in shared else ""
+        one = (f"{lambda_text(shared['reg'])} ("
+               + ", ".join(f"{lambda_text(reg)}: {mean:.2f}" for reg, mean in shared["means"].items()) + compared + ")")
         reported = [(label, "m.s.", selection["choices"], f"lambda per seed: %s{left_out_note(selection)}")]
         if selection.get("given"):
             reported.append((label.replace("reg=m.s.", "reg=given", 1), "given", selection["given"],
                              "lambda per seed, as given (--per-seed-lambda): %s"))
         for name, tag, choices, intro in reported:
-            lambdas = ", ".join(f"{c['seed']}: {c['reg']:g}" for c in choices)
+            lambdas = ", ".join(f"{c['seed']}: {lambda_text(c['reg'])}" for c in choices)
             found = {(SELECTION_TIME, CRITERION): ("selection", Estimate.of([c["score"] for c in choices],
                                                                             [c["seed"] for c in choices])),
                      **estimates([(c["seed"], summaries[c["tag"]]) for c in choices])}
-            rows += csv_rows(name, selection["config"], found, reg=f"{tag} " + " ".join(f"{c['reg']:g}" for c in choices))
+            rows += csv_rows(name, selection["config"], found, reg=f"{tag} " + " ".join(lambda_text(c["reg"]) for c in choices))
             overview.append([name, len(choices), lambdas, one if tag == "m.s." else "",
                              cell(found, (SELECTION_TIME, CRITERION)),
                              *overview_row(name, str(len(choices)), found, episodes)[2:]])

@@ -334,7 +334,8 @@ def _slug(value: Any) -> str:
 
 
 def trial_name(values: dict[str, Any], config: RunConfig) -> str:
-    """From the varying axes, e.g. ``neat-reg5-seed13``; a grid without axes: ``RunConfig.default_name``."""
+    """From the varying axes, e.g. ``neat-reg5-seed13``, ``neat-wp-reg0.4-lambda_2=0.3-seed1``; a grid
+    without axes: ``RunConfig.default_name``."""
     if not values:
         return config.default_name()
     parts = []
@@ -345,8 +346,9 @@ def trial_name(values: dict[str, Any], config: RunConfig) -> str:
             parts.append("rec" if value else "norec")
         elif key in _SWITCHES:  # a baseline on or off: its name or nothing
             parts.append(_SWITCHES[key] if value is True else f"no-{_SWITCHES[key]}")
-        else:
-            parts.append(_LABELS.get(key, key.split(".")[-1]) + _slug(value))
+        else:  # an option whose name ends in a digit takes an = before its value: lambda_2=0.003, not lambda_20.003
+            label = _LABELS.get(key, key.split(".")[-1])
+            parts.append(label + ("=" if label[-1].isdigit() else "") + _slug(value))
     return "-".join(parts)
 
 
