@@ -151,6 +151,11 @@ CASES = [
      edit_json("summary.json", lambda s: s.update(phases=["green", *s["phases"][1:]])), ["plot", "compare"]),
     ("ES reference not of its top controller's size", "es",
      edit_json("controllers/task1-green-reference.json", other_hidden_sizes), ["plot"]),
+    # a NaN or an infinity (Python's json reads them) crashed the forward pass
+    ("NEAT controller weight NaN", "neat",
+     every_controller(lambda c: c["genome"]["connections"][0].update(weight=float("nan"))), ["replay", "score"]),
+    ("ES controller parameter infinite", "es", edit_json(FINAL, lambda c: c["parameters"].__setitem__(3, float("inf"))),
+     ["replay"]),
 ]
 REFUSALS = [pytest.param(kind, damage, verb, id=f"{name}-{verb}") for name, kind, damage, verbs in CASES
             for verb in verbs]
