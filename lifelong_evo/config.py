@@ -11,7 +11,7 @@ from typing import Any, ClassVar
 from envs import ConfigError, ForagingConfig
 from envs.numerics import Numerics
 
-from .options import flag, parse_table, parse_value, schema
+from .options import LISTED_BY, flag, parse_table, parse_value, schema
 from .schedule import (MAX_GENERATIONS, ScheduleError, arena_colors, distinct_tasks, parse_schedule,
                        rehearsal_episodes, training_episodes)
 from .tasks import task_catalogue
@@ -234,11 +234,10 @@ class RunConfig:
         if algo not in REGISTRY:
             raise ConfigError(f"unknown algorithm {algo!r}: choose one of {', '.join(REGISTRY)}")
         optimizer = REGISTRY[algo]
-        listed_by = "python -m lifelong_evo options"
         config = replace(self, **typed,
-                         env=parse_table(ForagingConfig, self.env, "environment", "--env", listed_by),
+                         env=parse_table(ForagingConfig, self.env, "environment", "--env", LISTED_BY),
                          algo_options=parse_table(optimizer.Options, self.algo_options, algo, "--option",
-                                                  f"{listed_by} --algo {algo}"))
+                                                  f"{LISTED_BY} --algo {algo}"))
         if config.reg and not optimizer.has_regularizer:
             raise ConfigError(f"algorithm {algo!r} has no regulariser: drop --reg")
         if config.archive and not optimizer.can_adopt():

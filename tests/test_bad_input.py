@@ -89,6 +89,9 @@ def test_toml_values_follow_the_same_rule():
                             ({"population": 2.5}, "--population: 2.5 is not an integer"),
                             ({"compile": 1}, "--compile: 1 is not a boolean"),
                             ({"algo": "openai-es", "algo_options": {"hidden": [8.5]}}, "--option hidden"),
+                            # a TOML number where the choice is a word that looks like one
+                            ({"algo_options": {"genetics": 0.92}},
+                             '--option genetics: 0.92 is not one of 0.92, 2.0: write it in quotes, "0.92"'),
                             ({"env": 5}, "env in the config file must be a table")):
         with pytest.raises(ConfigError, match=re.escape(message)):
             resolve("smoke", values)
