@@ -8,10 +8,10 @@ type says how its value is parsed, its attribute docstring is the line the listi
 
 Parsing contract: text (from the command line, or a TOML string) is read by the field's type,
 surrounding spaces ignored; any other TOML value must already have it (an integer is fine for a
-number). Booleans: true/false, yes/no, on/off, 1/0 in any case. Integers: decimal digits.
-Numbers: decimal, finite. Choices (``Literal``): one of the listed words. Lists: ``[32,16]`` (or
-``32,16``; ``[]`` is empty). Anything else raises ``envs.ConfigError`` naming the option, the
-value and what is accepted.
+number). Booleans: true/false, yes/no, on/off, 1/0 in any case. Integers: decimal digits (ASCII
+0-9 only). Numbers: decimal, finite; -0 is 0. Choices (``Literal``): one of the listed words.
+Lists: ``[32,16]`` (or ``32,16``; ``[]`` is empty). Anything else raises ``envs.ConfigError``
+naming the option, the value and what is accepted.
 
 A value that the toolkit wrote (config.json: ``text=False``) is read strictly, as JSON typed it:
 text only where the field takes text (``str``, a choice), a JSON boolean for a boolean, a JSON
@@ -176,7 +176,7 @@ def _parse(kind: Any, value: Any, text_ok: bool = True) -> Any:
         elif text is not None and re.fullmatch(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?", text):
             number = float(text)
         if number is not None and math.isfinite(number):
-            return number
+            return number + 0.0  # -0 is 0: one value, one spelling in run names and comparisons
     elif kind is str:
         if text:
             return text

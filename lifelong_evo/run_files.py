@@ -12,7 +12,7 @@ one ``error:`` line), never as an exception halfway through its work. Nothing he
   ``"200"`` where an integer belongs is damage, not a value to convert), ``env`` and
   ``algo_options`` objects whose every option is one of the environment's or the optimiser's,
   likewise of its declared type and within its bounds, a regulariser its optimiser applies, a
-  schedule that parses and an arena the
+  schedule that parses (its canonical spelling is the configuration's) and an arena the
   environment accepts.
 - ``check_summary``: summary.json is an object whose ``phases`` are the first tasks of
   config.json's schedule, in order (``metrics.summarise`` writes one per ended phase), and whose
@@ -39,7 +39,7 @@ from envs import ConfigError, ForagingConfig
 from .config import DEFAULT_REGULARISER, RunConfig
 from .errors import RunDirError
 from .options import LISTED_BY, parse_table, parse_value, schema
-from .schedule import ScheduleError
+from .schedule import ScheduleError, canonical_schedule
 from .summary_json import SummaryLayout
 
 FIX = "restore it from a copy of the run, or run the run again"
@@ -113,7 +113,7 @@ def check_config(values: Any, path: Path, written_beside: Iterable[str] = ()) ->
         raise RunDirError(f"{path}, key 'regulariser': {_shown(config.regulariser)} is no regulariser of "
                           f"{config.algo} (it applies {', '.join(applies) or 'none'}): {FIX}")
     try:
-        config.phases()
+        config = replace(config, schedule=canonical_schedule(config.phases(), config.generations))
     except ScheduleError as error:
         raise RunDirError(f"{path}, key 'schedule': {error}: {FIX}") from None
     except ConfigError as error:  # a [tasks.NAME] table that defines no task

@@ -152,6 +152,10 @@ CUDA = torch.cuda.is_available()
     (["--schedule", f"red:{10**23}"], "every task of schedule 'red:100000000000000000000000' needs from 1 to 1000000 "
                                       "generations"),
     (["--reg", "1e300"], "argument --reg: '1e300' is not a finite number from 0 to 1e9"),
+    # digits are ASCII's everywhere: a schedule's count took any script's, --seed did not
+    (["--seed", "٤٢"], "argument --seed: '٤٢' is not an integer"),
+    (["--schedule", "red:١٠"], "bad generation count '١٠' in schedule item 'red:١٠': write it in the digits 0-9"),
+    (["--schedule", "red:５"], "bad generation count '５'"),
     # NEAT keeps 5 genomes per species (elitism): population 1 was a traceback after config.json was written
     (["--population", "1"], "--population: NEAT with genetics 0.92 needs a population of at least 5 (every species "
                             "keeps its 5 best genomes: elitism in algorithms/neat/config.ini), got 1"),

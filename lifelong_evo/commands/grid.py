@@ -264,6 +264,7 @@ def build_grid(args: argparse.Namespace) -> Grid:
     elif name is not None:
         name = check_run_name(name, f"name in {args.config}")
     grid = Grid(axes, fixed, preset, name, by_algo)
+    givens: list[dict[str, Any]] = []  # each trial's axis values as given
     for combo in itertools.product(*axes.values()):
         common = dict(zip(axes, combo))
         algo_axes, algo_fixed = by_algo.get(common.get("algo", fixed.get("algo", RunConfig().algo)), ({}, {}))
@@ -272,7 +273,12 @@ def build_grid(args: argparse.Namespace) -> Grid:
             values = {k: values[k] for k in sorted(values, key=_axis_rank)}
             # a cluster's machines, not this one, must have the device and compiler its trials need
             config = _resolve(preset, {**fixed, **algo_fixed, **values}, values, machine=args.address is None)
-            values = {key: _typed_value(config, key) for key in values}
+            given, values = values, {key: _typed_value(config, key) for key in values}
+            twin = next((i for i, trial in enumerate(grid.trials) if trial.values == values), None)
+            if twin is not None:  # two spellings of one value (a schedule's: red:2 and red:02)
+                raise UserError(f"the trials of {givens[twin]} and of {given} are one trial, {values}: give each "
+                                "value once")
+            givens.append(given)
             grid.trials.append(Trial(trial_name(values, config), values, config))
     seen: dict[str, Trial] = {}
     for trial in grid.trials:
