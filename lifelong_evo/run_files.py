@@ -38,12 +38,11 @@ from envs import ConfigError, ForagingConfig
 
 from .config import DEFAULT_REGULARISER, RunConfig
 from .errors import RunDirError
+from .json_files import FIX
 from .options import LISTED_BY, parse_table, parse_value, schema
 from .schedule import ScheduleError, canonical_schedule
 from .summary_json import SummaryLayout
 
-FIX = "restore it from a copy of the run, or run the run again"
-"""The way out for a damaged file: the toolkit wrote it, so only another copy can mend it."""
 TABLES = ("env", "algo_options", "tasks")
 """config.json's settings that are objects of options (every other one is a single value)."""
 

@@ -156,6 +156,10 @@ CUDA = torch.cuda.is_available()
     (["--seed", "٤٢"], "argument --seed: '٤٢' is not an integer"),
     (["--schedule", "red:١٠"], "bad generation count '١٠' in schedule item 'red:١٠': write it in the digits 0-9"),
     (["--schedule", "red:５"], "bad generation count '５'"),
+    # a key given twice kept its last value
+    (["--env", "duration=30", "--env", "duration=40"], "--env duration is given twice (duration=30 and duration=40): "
+                                                       "give it once"),
+    (["--option", "references=2", "--option", "references=2"], "--option references is given twice"),
     # NEAT keeps 5 genomes per species (elitism): population 1 was a traceback after config.json was written
     (["--population", "1"], "--population: NEAT with genetics 0.92 needs a population of at least 5 (every species "
                             "keeps its 5 best genomes: elitism in algorithms/neat/config.ini), got 1"),

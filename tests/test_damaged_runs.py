@@ -194,6 +194,13 @@ def test_a_damaged_run_is_refused_in_one_line_and_left_as_it_was(kind, damage, v
     assert str(run) in err, "the line names the file"
 
 
+@pytest.mark.parametrize("name", ["config.json", "summary.json"])
+def test_a_file_that_is_not_json_is_refused_with_the_way_out(name, work, capsys):
+    truncate(name)(work / "runs" / "neat")
+    err = assert_refused(command("neat", "compare", work), work, capsys)
+    assert "is not valid JSON" in err and err.endswith(": restore it from a copy of the run, or run the run again\n")
+
+
 def test_a_sweep_does_not_resume_a_trial_whose_config_json_is_damaged(work):
     """A sweep's trial is resumed from its config.json as ``--resume`` is: one whose environment
     option is of the wrong type is failed, naming the key, not continued with the value as it stands."""

@@ -322,6 +322,9 @@ def test_variants_give_values_together(tmp_path, capsys):
                                      "trial, {'schedule': 'red:2'}: give each value once"),
     (["--schedule", "red:2,green;red:2,green:2", "--generations", "2"], "are one trial"),
     (["--reg", "0,-0"], "reg lists a value twice ([0.0, 0.0]): give each value once"),
+    # the last of them was kept
+    (["--env", "duration=30", "--env", "duration=40,50"],
+     "--env duration is given twice (duration=30 and duration=40,50): give it once"),
 ])
 def test_a_value_given_twice_is_refused(argv, message, tmp_path, capsys):
     assert main(["sweep", "--preset", "smoke", *argv, "--out", str(tmp_path / "sweeps"), "--dry-run"]) == 2

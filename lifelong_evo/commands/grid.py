@@ -18,7 +18,7 @@ from ..config import PRESETS, RunConfig, load_tasks, load_toml, resolve
 from ..errors import UserError
 from ..options import flag, parse_value, schema
 from ..run_names import check_run_name
-from .flags import NESTED
+from .flags import NESTED, check_once
 
 RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in NESTED]
 """Run options with a flag of their own."""
@@ -224,8 +224,11 @@ def build_grid(args: argparse.Namespace) -> Grid:
         if value is not None:
             put(key, value if isinstance(value, list) else [value])
     for nested, setter in NESTED.items():
+        given: dict[str, str] = {}
         for item in getattr(args, setter[2:]):
             sub, values = _split_assignment(item, setter)
+            check_once(setter, sub, ",".join(values), given)
+            given[sub] = ",".join(values)
             put(f"{nested}.{sub}", values)
     if getattr(args, "tasks_file", None):  # every trial defines the file's tasks
         put("tasks", [load_tasks(args.tasks_file)])
