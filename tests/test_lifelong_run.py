@@ -37,23 +37,23 @@ def _num(value: str) -> float | None:
     return float(value) if value != "" else None
 
 
-SMOKE_RUNS = {"neat": ["--algo", "neat", "--reg", "2"],
-              "neat-genetics-2.0": ["--algo", "neat", "--reg", "2", "--option", "genetics=2.0"],
-              "openai-es": ["--algo", "openai-es", "--reg", "2", "--option", "sigma=0.5", "--env", "duration=100"]}
+TINY = ["--generations", "3", "--env", "duration=60"]
+"""The smoke preset cut to its old size: these tests check mechanics, not learning."""
+
+SMOKE_RUNS = {"neat": [*TINY, "--algo", "neat", "--reg", "2"],
+              "neat-genetics-2.0": [*TINY, "--algo", "neat", "--reg", "2", "--option", "genetics=2.0"],
+              "openai-es": ["--generations", "3", "--env", "duration=100", "--algo", "openai-es", "--reg", "2",
+                            "--option", "sigma=0.5"]}
 """Run directory name -> flags: NEAT with its default genetics (0.92) and with 2.0's, an ES (with
 a wider search and longer episodes: at TINY's size an ES's samples all score 0, and identities
 between zeros prove nothing)."""
-
-TINY = ["--generations", "3", "--env", "duration=60"]
-"""The smoke preset cut to its old size: these tests check mechanics, not learning."""
 
 
 @pytest.fixture(scope="module")
 def smoke_runs(tmp_path_factory):
     out = tmp_path_factory.mktemp("runs")
     for name, flags in SMOKE_RUNS.items():
-        assert main([*TINY, *flags, "--preset", "smoke", "--out", str(out), "--name", name, "--no-record",
-                     "--quiet"]) == 0
+        assert main([*flags, "--preset", "smoke", "--out", str(out), "--name", name, "--no-record", "--quiet"]) == 0
     return out
 
 
@@ -521,10 +521,10 @@ def test_resume_takes_the_original_command(smoke_runs, tmp_path, capsys):
     for name in ("neat", "neat-red-green-red-reg2-seed42"):
         assert (tmp_path / name / "metrics.csv").read_text() == (smoke_runs / "neat/metrics.csv").read_text()
     capsys.readouterr()
-    assert main([*original, "--name", "neat", "--resume", "--population", "50", "--env", "duration=100"]) == 2
+    assert main([*original, "--name", "neat", "--resume", "--population", "50", "--env", "n_agents=4"]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"error: {tmp_path / 'neat'} was run with other settings") and err.count("\n") == 1
-    assert "--population 50 (stored: 20)" in err and "--env duration=100 (stored: 60)" in err
+    assert "--population 50 (stored: 20)" in err and "--env n_agents=4 (stored: 5)" in err
     assert main([*original, "--name", "neat", "--resume", "--option", "genetics=2.0"]) == 2
     assert "--option genetics='2.0' (stored: '0.92')" in capsys.readouterr().err
 
