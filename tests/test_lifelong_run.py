@@ -709,9 +709,12 @@ def test_reg_for_an_algorithm_without_regulariser(monkeypatch, tmp_path, capsys)
     assert not any(tmp_path.iterdir())
 
 
-def test_the_update_gets_the_cores_of_the_evaluation_threads(monkeypatch, tmp_path):
-    """Between evaluations the evaluation threads are idle: ``ask`` and ``tell`` run with
-    threads x eval_threads torch threads, every evaluation thread with ``--threads``."""
+@pytest.mark.parametrize("numerics, update", [("portable", 1), ("native", 2)])
+def test_the_update_gets_the_cores_of_the_evaluation_threads(monkeypatch, tmp_path, numerics, update):
+    """Between evaluations the evaluation threads are idle: under the native arithmetic ``ask``
+    and ``tell`` run with threads x eval_threads torch threads; under the portable one with one,
+    as MKL's linear algebra (full CMA-ES's update) sums otherwise on another thread count. Every
+    evaluation thread runs with ``--threads``."""
     import torch
 
     from algorithms import REGISTRY
@@ -739,8 +742,8 @@ def test_the_update_gets_the_cores_of_the_evaluation_threads(monkeypatch, tmp_pa
     monkeypatch.setitem(REGISTRY, "recording-es", Recording)
     monkeypatch.setattr(evaluate, "_play", recording_play)
     assert main(["--algo", "recording-es", "--preset", "smoke", *TINY, "--threads", "1", "--eval-threads", "2",
-                 "--out", str(tmp_path), "--no-record", "--quiet"]) == 0
-    assert seen == {"ask": {2}, "tell": {2}, "evaluate": {1}}
+                 "--numerics", numerics, "--out", str(tmp_path), "--no-record", "--quiet"]) == 0
+    assert seen == {"ask": {update}, "tell": {update}, "evaluate": {1}}
     assert torch.get_num_threads() == 1
 
 
