@@ -16,6 +16,7 @@ an ``OptimizerOptions`` dataclass.
 """
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar, Literal, Protocol, get_args, get_origin, get_type_hints
@@ -30,8 +31,9 @@ class ExportError(ValueError):
 
 
 def is_number(value: Any) -> bool:
-    """Whether a JSON value is a number (an int or a float, not a boolean)."""
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
+    """Whether a JSON value is a finite number (an int or a float, not a boolean; not NaN or an
+    infinity, which Python's json reads and no controller's parameter can be)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def is_integer(value: Any) -> bool:

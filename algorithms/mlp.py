@@ -119,7 +119,7 @@ class MLPPolicy:
 def check_export(exported: dict, obs_dim: int | None = None) -> None:
     """ExportError unless ``exported`` is an MLP export: ``layer_sizes`` a list of at least two
     positive integers ending in ``N_OUTPUTS`` (and starting with ``obs_dim``, where given), and
-    ``parameters`` a list of exactly ``n_parameters(layer_sizes)`` numbers."""
+    ``parameters`` a list of exactly ``n_parameters(layer_sizes)`` finite numbers."""
     sizes = exported.get("layer_sizes")
     if not isinstance(sizes, list) or len(sizes) < 2 or not all(is_integer(s) and s >= 1 for s in sizes):
         raise ExportError(f"layer_sizes is {shown_value(sizes)}, not a list of at least two positive integers")
@@ -128,8 +128,11 @@ def check_export(exported: dict, obs_dim: int | None = None) -> None:
     if obs_dim is not None and sizes[0] != obs_dim:
         raise ExportError(f"layer_sizes {sizes} takes {sizes[0]} inputs, not the arena's {obs_dim} observations")
     params = exported.get("parameters")
-    if not isinstance(params, list) or not all(is_number(p) for p in params):
+    if not isinstance(params, list):
         raise ExportError(f"parameters is {shown_value(params)}, not a list of numbers")
+    bad = next((i for i, p in enumerate(params) if not is_number(p)), None)
+    if bad is not None:
+        raise ExportError(f"parameters[{bad}] is {shown_value(params[bad])}, not a finite number")
     if len(params) != n_parameters(sizes):
         raise ExportError(f"parameters has {len(params)} numbers, and layer_sizes {sizes} need {n_parameters(sizes)}")
 

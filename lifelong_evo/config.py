@@ -11,9 +11,9 @@ from typing import Any, ClassVar
 from envs import ConfigError, ForagingConfig
 from envs.numerics import Numerics
 
-from .options import flag, parse_table, parse_value, schema
-from .schedule import (MAX_GENERATIONS, ScheduleError, arena_colors, distinct_tasks, parse_schedule,
-                       rehearsal_episodes, training_episodes)
+from .options import LISTED_BY, flag, parse_table, parse_value, schema
+from .schedule import (MAX_GENERATIONS, ScheduleError, arena_colors, canonical_schedule, distinct_tasks,
+                       parse_schedule, rehearsal_episodes, schedule_of, training_episodes)
 from .tasks import TASK_TABLES, task_catalogue
 
 DEFAULT_REGULARISER = "default"
@@ -144,6 +144,7 @@ class RunConfig:
         filled = {**asdict(cls()), **values} if values else {}
         if filled:
             filled["regulariser"] = cls.regulariser_of(filled)
+            filled["schedule"] = cls.schedule_spelling(filled)
         return {k: v for k, v in json.loads(json.dumps(filled)).items() if k not in cls.OUTPUT_SETTINGS}
 
     @staticmethod
@@ -159,6 +160,16 @@ class RunConfig:
             return resolve_regulariser(values.get("algo"), regulariser, values.get("algo_options") or {})[0]
         except (ConfigError, KeyError, TypeError, ValueError):
             return regulariser
+
+    @staticmethod
+    def schedule_spelling(values: dict[str, Any]) -> Any:
+        """The schedule of ``values`` (RunConfig's fields, as config.json or a checkpoint holds
+        them) in its one spelling (``schedule.canonical_schedule``): a run written with another
+        spelling of it is the same run; as it stands where it does not parse."""
+        try:
+            return canonical_schedule(schedule_of(values), values["generations"])
+        except (ConfigError, KeyError, TypeError, ValueError):  # ScheduleError is a ValueError
+            return values.get("schedule")
 
     @classmethod
     def first_task_settings(cls, values: dict[str, Any]) -> dict[str, Any]:
@@ -229,11 +240,10 @@ class RunConfig:
         if algo not in REGISTRY:
             raise ConfigError(f"unknown algorithm {algo!r}: choose one of {', '.join(REGISTRY)}")
         optimizer = REGISTRY[algo]
-        listed_by = "python -m lifelong_evo options"
         config = replace(self, **typed,
-                         env=parse_table(ForagingConfig, self.env, "environment", "--env", listed_by),
+                         env=parse_table(ForagingConfig, self.env, "environment", "--env", LISTED_BY),
                          algo_options=parse_table(optimizer.Options, self.algo_options, algo, "--option",
-                                                  f"{listed_by} --algo {algo}"))
+                                                  f"{LISTED_BY} --algo {algo}"))
         if config.reg and not optimizer.has_regularizer:
             raise ConfigError(f"algorithm {algo!r} has no regulariser: drop --reg")
         if config.archive and not optimizer.can_adopt():
@@ -260,6 +270,7 @@ class RunConfig:
             phases = config.phases()
         except ScheduleError as error:
             raise ConfigError(str(error)) from None
+        config = replace(config, schedule=canonical_schedule(phases, config.generations))
         env = config.env_config()
         scheduled = distinct_tasks(phases)
         for task in scheduled:

@@ -62,12 +62,17 @@ def task_means(totals: torch.Tensor, counts: Sequence[int]) -> torch.Tensor:
 
 
 @contextmanager
-def update_threads(threads: int, eval_threads: int) -> Iterator[None]:
-    """Run the block (an optimiser's ``ask`` and ``tell``) with ``threads * eval_threads`` torch
-    threads, then go back to ``threads``. Between evaluations the evaluation threads are idle,
-    so their cores can share the update's linear algebra (full CMA-ES's Cholesky factorisation
-    and covariance update, which grow as d^3 and d^2 x population with the parameter count d)."""
-    torch.set_num_threads(threads * eval_threads)
+def update_threads(threads: int, eval_threads: int, arithmetic: str) -> Iterator[None]:
+    """Run the block (an optimiser's ``ask`` and ``tell``) with one torch thread under the
+    ``portable`` arithmetic (``envs.numerics``), with ``threads * eval_threads`` under ``native``,
+    then go back to ``threads``. The update's linear algebra (MKL's: full CMA-ES's
+    eigendecomposition and covariance update, which grow as d^3 and d^2 x population with the
+    parameter count d) splits its sums by the thread count, so on more threads it samples other
+    populations (by up to 4e-7 after one update at the paper's size), which evolution turns into
+    another run: portable runs keep it on one thread, so that no speed setting changes a number.
+    Native runs let the idle evaluation threads' cores share it (their numbers follow the speed
+    settings anyway); at the paper's size it takes milliseconds either way (docs/performance.md)."""
+    torch.set_num_threads(threads * eval_threads if arithmetic == "native" else 1)
     try:
         yield
     finally:

@@ -220,7 +220,7 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
             returns = in_task == 0 and phase_index > 0 and phase_names[phase_index - 1] != phase.name
             if returns and phase.name in state.archive:  # the task returns: its archived controller back
                 optimizer.adopt(state.archive[phase.name])
-            with update_threads(config.threads, config.eval_threads):
+            with update_threads(config.threads, config.eval_threads, config.numerics):
                 policy = optimizer.ask()
             played = functional.beside(policy, optimizer)
             fitness = yield Evaluation(played, env_config, [task for task, _ in training] + others,
@@ -254,7 +254,7 @@ def lifelong(config: RunConfig, run_dir: RunDir, *, resume: bool = False, overwr
             # this generation's scores, which the optimiser has not been told yet
             exports = _exports(optimizer, raw, regularised, generation) if generation == 0 or last or periodic else {}
             exported = exports.get("top")
-            with update_threads(config.threads, config.eval_threads):
+            with update_threads(config.threads, config.eval_threads, config.numerics):
                 report = optimizer.tell(raw, regularised)
             if penalty is not None:  # the distance diagnostics are the penalty the selection used
                 report.extra.update({name: value for name, value in (

@@ -8,10 +8,15 @@ type says how its value is parsed, its attribute docstring is the line the listi
 
 Parsing contract: text (from the command line, or a TOML string) is read by the field's type,
 surrounding spaces ignored; any other TOML value must already have it (an integer is fine for a
-number). Booleans: true/false, yes/no, on/off, 1/0 in any case. Integers: decimal digits.
-Numbers: decimal, finite. Choices (``Literal``): one of the listed words. Lists: ``[32,16]`` (or
-``32,16``; ``[]`` is empty). Anything else raises ``envs.ConfigError`` naming the option, the
-value and what is accepted.
+number). Booleans: true/false, yes/no, on/off, 1/0 in any case. Integers: decimal digits (ASCII
+0-9 only). Numbers: decimal, finite; -0 is 0. Choices (``Literal``): one of the listed words.
+Lists: ``[32,16]`` (or ``32,16``; ``[]`` is empty). Anything else raises ``envs.ConfigError``
+naming the option, the value and what is accepted.
+
+A value that the toolkit wrote (config.json: ``text=False``) is read strictly, as JSON typed it:
+text only where the field takes text (``str``, a choice), a JSON boolean for a boolean, a JSON
+integer for an integer, a JSON number for a number, a JSON list for a list. A string ``"200"``
+where an integer belongs is a damaged file, not a value to convert.
 
 Bounds: a number field may declare the range it accepts in its dataclass field's ``metadata``
 (``field(default=500, metadata={"min": 1, "max": 100_000})``): ``min`` and ``max`` (inclusive),
@@ -36,6 +41,8 @@ from typing import Annotated, Any, Literal, Mapping, get_args, get_origin, get_t
 from envs import ConfigError
 from envs.config import shown
 
+LISTED_BY = "python -m lifelong_evo options"
+"""The command that lists every option (``--algo NAME``: one optimiser's)."""
 TRUE_WORDS = ("true", "yes", "on", "1")
 FALSE_WORDS = ("false", "no", "off", "0")
 
@@ -88,8 +95,9 @@ def unbounded(kind: Any) -> tuple[Any, Bounds | None]:
     return kind, None
 
 
-def expected(kind: Any) -> str:
-    """What a value of type ``kind`` must look like (in messages and the listing)."""
+def expected(kind: Any, text: bool = True) -> str:
+    """What a value of type ``kind`` must look like (in messages and the listing); ``text``: as
+    text is read (``parse_value``), else as a JSON value."""
     kind, bounds = unbounded(kind)
     within = f" {bounds.describe()}" if bounds and bounds.describe() else ""
     origin = get_origin(kind)
@@ -98,7 +106,8 @@ def expected(kind: Any) -> str:
     if origin in (tuple, list):
         most = f"at most {bounds.max_items} " if bounds and bounds.max_items is not None else ""
         return f"a list of {most}{_plural(get_args(kind)[0])}{within}, written [a,b,...]"
-    return {bool: "a boolean: true/false, yes/no, on/off or 1/0", int: "an integer", float: "a finite number",
+    boolean = "a boolean: true/false, yes/no, on/off or 1/0" if text else "a boolean (true or false)"
+    return {bool: boolean, int: "an integer", float: "a finite number",
             str: "text"}.get(kind, f"a {getattr(kind, '__name__', kind)}") + within
 
 
@@ -106,22 +115,34 @@ def _plural(kind: Any) -> str:
     return {int: "integers", float: "numbers", str: "words"}.get(kind, expected(kind))
 
 
-def parse_value(kind: Any, value: Any, name: str | None = None) -> Any:
+def parse_value(kind: Any, value: Any, name: str | None = None, text: bool = True) -> Any:
     """``value`` as type ``kind`` (see the module docstring), within its bounds; otherwise
-    ConfigError saying what ``kind`` accepts, after ``name`` where given."""
+    ConfigError saying what ``kind`` accepts, after ``name`` where given. ``text=False``: a JSON
+    value the toolkit wrote, read strictly (a string only where ``kind`` takes text)."""
     plain_kind, bounds = unbounded(kind)
     try:
-        parsed = _parse(plain_kind, value)
+        parsed = _parse(plain_kind, value, text)
         if bounds is not None and not bounds.admits(parsed):
             raise ValueError
         return parsed
     except ValueError:
-        refusal = f"{shown(value)} is not {expected(kind)}"  # a value of thousands of digits: one readable line
+        written = shown(value)  # a value of thousands of digits: one readable line
+        refusal = f"{written} is not {expected(kind, text)}"
+        if isinstance(value, str) and not text and not _reads_text(plain_kind):
+            refusal = f"{written} is a string, not {expected(kind, text)}"
+        choices = get_args(plain_kind) if get_origin(plain_kind) is Literal else ()
+        if not isinstance(value, (str, bool)) and str(value) in choices:  # TOML's genetics = 0.92, a number
+            refusal += f": write it in quotes, \"{value}\""
         raise ConfigError(f"{name}: {refusal}" if name else refusal) from None
 
 
-def _parse(kind: Any, value: Any) -> Any:
-    text = value.strip() if isinstance(value, str) else None
+def _reads_text(kind: Any) -> bool:
+    """Whether a value of ``kind`` is text itself (a word, a choice), not text to convert."""
+    return kind is str or get_origin(kind) is Literal
+
+
+def _parse(kind: Any, value: Any, text_ok: bool = True) -> Any:
+    text = value.strip() if isinstance(value, str) and (text_ok or _reads_text(kind)) else None
     origin = get_origin(kind)
     if origin is Literal:
         if text in get_args(kind):
@@ -136,7 +157,7 @@ def _parse(kind: Any, value: Any) -> Any:
                 raise ValueError  # empty text without brackets: say [] for an empty list
             value = inner.split(",") if inner.strip() else []
         if isinstance(value, (list, tuple)):
-            return origin(_parse(item_kind, item) for item in value)
+            return origin(_parse(item_kind, item, text_ok) for item in value)
     elif kind is bool:
         if isinstance(value, bool):
             return value
@@ -154,7 +175,7 @@ def _parse(kind: Any, value: Any) -> Any:
         elif text is not None and re.fullmatch(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?", text):
             number = float(text)
         if number is not None and math.isfinite(number):
-            return number
+            return number + 0.0  # -0 is 0: one value, one spelling in run names and comparisons
     elif kind is str:
         if text:
             return text
@@ -184,17 +205,18 @@ def _metadata(cls: type, name: str) -> Mapping[str, Any]:
     return {}
 
 
-def parse_table(cls: type, values: dict[str, Any], owner: str, setter: str, listed_by: str) -> dict[str, Any]:
+def parse_table(cls: type, values: dict[str, Any], owner: str, setter: str, listed_by: str,
+                text: bool = True) -> dict[str, Any]:
     """``values`` (some fields of dataclass ``cls``, as the user gave them) parsed to their types;
     an unknown key is refused with the accepted ones. ``owner`` names the table in messages
     (``environment``, ``neat``), ``setter`` is the flag that sets a key (``--env``), ``listed_by``
-    the command that describes them."""
+    the command that describes them; ``text``: as ``parse_value``'s."""
     kinds = schema(cls)
     for key in values:
         if key not in kinds:
             raise ConfigError(f"unknown {owner} option {key!r}: the {owner} options are "
                               f"{', '.join(kinds) or 'none'} ({listed_by} describes them)")
-    return {key: parse_value(kinds[key], value, f"{setter} {key}") for key, value in values.items()}
+    return {key: parse_value(kinds[key], value, f"{setter} {key}", text) for key, value in values.items()}
 
 
 # ------------------------------------------------------------------------------------------- listing

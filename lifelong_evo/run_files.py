@@ -8,8 +8,11 @@ naming the file, the key or line, the value and what was expected, with the fix 
 one ``error:`` line), never as an exception halfway through its work. Nothing here writes.
 
 - ``check_config``: config.json is a JSON object of ``RunConfig`` fields (and the keys written
-  beside them), each of its field's type and within its bounds, ``env`` and ``algo_options``
-  objects, a regulariser its optimiser applies, a schedule that parses and an arena the
+  beside them), each of its field's type and within its bounds as JSON typed it (a string
+  ``"200"`` where an integer belongs is damage, not a value to convert), ``env`` and
+  ``algo_options`` objects whose every option is one of the environment's or the optimiser's,
+  likewise of its declared type and within its bounds, a regulariser its optimiser applies, a
+  schedule that parses (its canonical spelling is the configuration's) and an arena the
   environment accepts.
 - ``check_summary``: summary.json is an object whose ``phases`` are the first tasks of
   config.json's schedule, in order (``metrics.summarise`` writes one per ended phase), and whose
@@ -31,16 +34,15 @@ from pathlib import Path
 from typing import Any
 
 from algorithms import REGISTRY, ExportError, check_export
-from envs import ConfigError
+from envs import ConfigError, ForagingConfig
 
 from .config import DEFAULT_REGULARISER, RunConfig
 from .errors import RunDirError
-from .options import parse_value, schema
-from .schedule import ScheduleError
+from .json_files import FIX
+from .options import LISTED_BY, parse_table, parse_value, schema
+from .schedule import ScheduleError, canonical_schedule
 from .summary_json import SummaryLayout
 
-FIX = "restore it from a copy of the run, or run the run again"
-"""The way out for a damaged file: the toolkit wrote it, so only another copy can mend it."""
 TABLES = ("env", "algo_options", "tasks")
 """config.json's settings that are objects of options (every other one is a single value)."""
 
@@ -87,9 +89,22 @@ def check_config(values: Any, path: Path, written_beside: Iterable[str] = ()) ->
             typed[name] = value
             continue
         try:
-            typed[name] = parse_value(declared[name], value)
+            typed[name] = parse_value(declared[name], value, text=False)
         except ConfigError as error:
             raise RunDirError(f"{path}, key {name!r}: {error}: {FIX}") from None
+    algo = typed.get("algo", RunConfig.algo)
+    optimizer = REGISTRY.get(algo)
+    try:
+        typed["env"] = parse_table(ForagingConfig, typed.get("env", {}), "environment", "option", LISTED_BY, text=False)
+    except ConfigError as error:
+        raise RunDirError(f"{path}, key 'env': {error}: {FIX}") from None
+    if optimizer is not None:  # an optimiser this process does not know: the script that registers it knows its options
+        try:
+            typed["algo_options"] = parse_table(optimizer.Options, typed.get("algo_options", {}), algo, "option",
+                                                f"{LISTED_BY} --algo {algo}", text=False)
+            optimizer.Options(**typed["algo_options"])
+        except (ConfigError, ValueError) as error:
+            raise RunDirError(f"{path}, key 'algo_options': {error}: {FIX}") from None
     config = RunConfig(**typed)
     config = replace(config, regulariser=RunConfig.regulariser_of(config.to_dict()))  # an older config.json's
     applies = getattr(REGISTRY.get(config.algo), "regularisers", None)
@@ -97,7 +112,7 @@ def check_config(values: Any, path: Path, written_beside: Iterable[str] = ()) ->
         raise RunDirError(f"{path}, key 'regulariser': {_shown(config.regulariser)} is no regulariser of "
                           f"{config.algo} (it applies {', '.join(applies) or 'none'}): {FIX}")
     try:
-        config.phases()
+        config = replace(config, schedule=canonical_schedule(config.phases(), config.generations))
     except ScheduleError as error:
         raise RunDirError(f"{path}, key 'schedule': {error}: {FIX}") from None
     except ConfigError as error:  # a [tasks.NAME] table that defines no task

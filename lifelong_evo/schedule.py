@@ -11,10 +11,15 @@ two), and with the baselines of docs/metrics.md (Baselines) also earlier tasks (
 every task of the schedule (joint); always ``--evals`` episodes per controller in all.
 
 A schedule names tasks from a catalogue (``lifelong_evo.tasks.task_catalogue``): the built-in
-ones and those the run defines; ``schedule_of`` reads a run directory's schedule with its own."""
+ones and those the run defines; ``schedule_of`` reads a run directory's schedule with its own.
+
+One schedule has one spelling (``canonical_schedule``), which a run's configuration stores and
+compares: ``red:2, green:2``, ``red:02,green:+2`` and (at ``--generations 2``) ``red:2,green``
+are all ``red:2,green:2``, and a list that is a named schedule at ``--generations`` is its name."""
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -72,14 +77,25 @@ def parse_schedule(spec: str, generations: int, tasks: Mapping[str, Task] | None
                     f"a>b:N blends task a into b)")
         if blend and source == name:
             raise ScheduleError(f"schedule item {item!r} blends {name} into itself: name two tasks, e.g. red>green:50")
-        try:
-            n = int(count) if count else generations
-        except ValueError:
-            raise ScheduleError(f"bad generation count {count!r} in schedule item {item!r}: write e.g. red:200") from None
+        if count and not re.fullmatch(r"[+-]?[0-9]+", count.strip()):  # ASCII digits, as every integer option
+            raise ScheduleError(f"bad generation count {count!r} in schedule item {item!r}: write it in the digits "
+                                "0-9, e.g. red:200")
+        n = int(count) if count else generations
         if not 1 <= n <= MAX_GENERATIONS:
             raise ScheduleError(f"every task of schedule {spec!r} needs from 1 to {MAX_GENERATIONS} generations")
         phases.append(Phase(tasks[name], n, tasks[source] if blend else None))
     return phases
+
+
+def canonical_schedule(phases: list[Phase], generations: int) -> str:
+    """The one spelling of a schedule's ``phases`` (``generations``: the count of an item that
+    gives none): the named schedule they are, if any (config.json has always stored those by
+    name), else every item with its count, ``red:200,red>green:50,green:150``."""
+    spelt = [(phase.source.name if phase.source else None, phase.name, phase.generations) for phase in phases]
+    for name, tasks in NAMED_SCHEDULES.items():
+        if spelt == [(None, task, generations) for task in tasks]:
+            return name
+    return ",".join(f"{source + '>' if source else ''}{task}:{count}" for source, task, count in spelt)
 
 
 def schedule_of(config: Mapping[str, Any]) -> list[Phase]:

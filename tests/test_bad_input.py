@@ -89,6 +89,9 @@ def test_toml_values_follow_the_same_rule():
                             ({"population": 2.5}, "--population: 2.5 is not an integer"),
                             ({"compile": 1}, "--compile: 1 is not a boolean"),
                             ({"algo": "openai-es", "algo_options": {"hidden": [8.5]}}, "--option hidden"),
+                            # a TOML number where the choice is a word that looks like one
+                            ({"algo_options": {"genetics": 0.92}},
+                             '--option genetics: 0.92 is not one of 0.92, 2.0: write it in quotes, "0.92"'),
                             ({"env": 5}, "env in the config file must be a table")):
         with pytest.raises(ConfigError, match=re.escape(message)):
             resolve("smoke", values)
@@ -155,6 +158,14 @@ CUDA = torch.cuda.is_available()
     (["--schedule", f"red:{10**23}"], "every task of schedule 'red:100000000000000000000000' needs from 1 to 1000000 "
                                       "generations"),
     (["--reg", "1e300"], "argument --reg: '1e300' is not a finite number from 0 to 1e9"),
+    # digits are ASCII's everywhere: a schedule's count took any script's, --seed did not
+    (["--seed", "٤٢"], "argument --seed: '٤٢' is not an integer"),
+    (["--schedule", "red:١٠"], "bad generation count '١٠' in schedule item 'red:١٠': write it in the digits 0-9"),
+    (["--schedule", "red:５"], "bad generation count '５'"),
+    # a key given twice kept its last value
+    (["--env", "duration=30", "--env", "duration=40"], "--env duration is given twice (duration=30 and duration=40): "
+                                                       "give it once"),
+    (["--option", "references=2", "--option", "references=2"], "--option references is given twice"),
     # NEAT keeps 5 genomes per species (elitism): population 1 was a traceback after config.json was written
     (["--population", "1"], "--population: NEAT with genetics 0.92 needs a population of at least 5 (every species "
                             "keeps its 5 best genomes: elitism in algorithms/neat/config.ini), got 1"),

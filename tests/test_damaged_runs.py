@@ -22,6 +22,8 @@ from hypothesis import strategies as st
 
 from lifelong_evo.commands import view
 from lifelong_evo.commands.cli import main
+from lifelong_evo.commands.sweep import trial_state
+from lifelong_evo.rundir import RunDir
 from tests.test_command_line_fuzz import SIZE, snapshot
 
 KINDS = {"neat": [], "es": ["--algo", "openai-es"]}
@@ -60,6 +62,11 @@ def edit_json(name: str, change):
 
 def setting(key: str, value):
     return edit_json("config.json", lambda config: config.update({key: value}))
+
+
+def option(table: str, key: str, value):
+    """A damage: config.json's ``table`` (env, algo_options) with ``key`` set to ``value``."""
+    return edit_json("config.json", lambda config: config[table].update({key: value}))
 
 
 def write(name: str, text: str):
@@ -151,6 +158,17 @@ CASES = [
      edit_json("summary.json", lambda s: s.update(phases=["green", *s["phases"][1:]])), ["plot", "compare"]),
     ("ES reference not of its top controller's size", "es",
      edit_json("controllers/task1-green-reference.json", other_hidden_sizes), ["plot"]),
+    # config.json's env and algo_options used as written before: a truthy "no", a TypeError or ValueError later
+    ("config.json env see_other_agents 'no'", "neat", option("env", "see_other_agents", "no"),
+     ["replay", "score", "compare", "--resume", "--start-from"]),
+    ("config.json env duration '200'", "neat", option("env", "duration", "200"), ["replay", "plot"]),
+    ("config.json algo_options references '1'", "neat", option("algo_options", "references", "1"), ["--resume"]),
+    ("config.json algo_options sigma out of range", "es", option("algo_options", "sigma", -1), ["replay"]),
+    # a NaN or an infinity (Python's json reads them) crashed the forward pass
+    ("NEAT controller weight NaN", "neat",
+     every_controller(lambda c: c["genome"]["connections"][0].update(weight=float("nan"))), ["replay", "score"]),
+    ("ES controller parameter infinite", "es", edit_json(FINAL, lambda c: c["parameters"].__setitem__(3, float("inf"))),
+     ["replay"]),
 ]
 REFUSALS = [pytest.param(kind, damage, verb, id=f"{name}-{verb}") for name, kind, damage, verbs in CASES
             for verb in verbs]
@@ -172,8 +190,25 @@ def assert_refused(argv: list[str], work: Path, capsys) -> str:
 def test_a_damaged_run_is_refused_in_one_line_and_left_as_it_was(kind, damage, verb, work, capsys):
     run = work / "runs" / kind
     damage(run)
-    err = assert_refused(VERBS[verb](run, work), work, capsys)
+    err = assert_refused(command(kind, verb, work), work, capsys)
     assert str(run) in err, "the line names the file"
+
+
+@pytest.mark.parametrize("name", ["config.json", "summary.json"])
+def test_a_file_that_is_not_json_is_refused_with_the_way_out(name, work, capsys):
+    truncate(name)(work / "runs" / "neat")
+    err = assert_refused(command("neat", "compare", work), work, capsys)
+    assert "is not valid JSON" in err and err.endswith(": restore it from a copy of the run, or run the run again\n")
+
+
+def test_a_sweep_does_not_resume_a_trial_whose_config_json_is_damaged(work):
+    """A sweep's trial is resumed from its config.json as ``--resume`` is: one whose environment
+    option is of the wrong type is failed, naming the key, not continued with the value as it stands."""
+    run = work / "runs" / "neat"
+    config = RunDir(run).read_config()
+    option("env", "see_other_agents", "no")(run)
+    state, why = trial_state(run, config)
+    assert state == "failed" and "key 'env'" in why and "see_other_agents" in why, (state, why)
 
 
 def test_the_undamaged_runs_pass_every_verb(work, capsys):

@@ -37,23 +37,23 @@ def _num(value: str) -> float | None:
     return float(value) if value != "" else None
 
 
-SMOKE_RUNS = {"neat": ["--algo", "neat", "--reg", "2"],
-              "neat-genetics-2.0": ["--algo", "neat", "--reg", "2", "--option", "genetics=2.0"],
-              "openai-es": ["--algo", "openai-es", "--reg", "2", "--option", "sigma=0.5", "--env", "duration=100"]}
+TINY = ["--generations", "3", "--env", "duration=60"]
+"""The smoke preset cut to its old size: these tests check mechanics, not learning."""
+
+SMOKE_RUNS = {"neat": [*TINY, "--algo", "neat", "--reg", "2"],
+              "neat-genetics-2.0": [*TINY, "--algo", "neat", "--reg", "2", "--option", "genetics=2.0"],
+              "openai-es": ["--generations", "3", "--env", "duration=100", "--algo", "openai-es", "--reg", "2",
+                            "--option", "sigma=0.5"]}
 """Run directory name -> flags: NEAT with its default genetics (0.92) and with 2.0's, an ES (with
 a wider search and longer episodes: at TINY's size an ES's samples all score 0, and identities
 between zeros prove nothing)."""
-
-TINY = ["--generations", "3", "--env", "duration=60"]
-"""The smoke preset cut to its old size: these tests check mechanics, not learning."""
 
 
 @pytest.fixture(scope="module")
 def smoke_runs(tmp_path_factory):
     out = tmp_path_factory.mktemp("runs")
     for name, flags in SMOKE_RUNS.items():
-        assert main([*TINY, *flags, "--preset", "smoke", "--out", str(out), "--name", name, "--no-record",
-                     "--quiet"]) == 0
+        assert main([*flags, "--preset", "smoke", "--out", str(out), "--name", name, "--no-record", "--quiet"]) == 0
     return out
 
 
@@ -587,10 +587,10 @@ def test_resume_takes_the_original_command(smoke_runs, tmp_path, capsys):
     for name in ("neat", "neat-red-green-red-reg2-seed42"):
         assert (tmp_path / name / "metrics.csv").read_text() == (smoke_runs / "neat/metrics.csv").read_text()
     capsys.readouterr()
-    assert main([*original, "--name", "neat", "--resume", "--population", "50", "--env", "duration=100"]) == 2
+    assert main([*original, "--name", "neat", "--resume", "--population", "50", "--env", "n_agents=4"]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"error: {tmp_path / 'neat'} was run with other settings") and err.count("\n") == 1
-    assert "--population 50 (stored: 20)" in err and "--env duration=100 (stored: 60)" in err
+    assert "--population 50 (stored: 20)" in err and "--env n_agents=4 (stored: 5)" in err
     assert main([*original, "--name", "neat", "--resume", "--option", "genetics=2.0"]) == 2
     assert "--option genetics='2.0' (stored: '0.92')" in capsys.readouterr().err
 
@@ -776,9 +776,12 @@ def test_reg_for_an_algorithm_without_regulariser(monkeypatch, tmp_path, capsys)
     assert not any(tmp_path.iterdir())
 
 
-def test_the_update_gets_the_cores_of_the_evaluation_threads(monkeypatch, tmp_path):
-    """Between evaluations the evaluation threads are idle: ``ask`` and ``tell`` run with
-    threads x eval_threads torch threads, every evaluation thread with ``--threads``."""
+@pytest.mark.parametrize("numerics, update", [("portable", 1), ("native", 2)])
+def test_the_update_gets_the_cores_of_the_evaluation_threads(monkeypatch, tmp_path, numerics, update):
+    """Between evaluations the evaluation threads are idle: under the native arithmetic ``ask``
+    and ``tell`` run with threads x eval_threads torch threads; under the portable one with one,
+    as MKL's linear algebra (full CMA-ES's update) sums otherwise on another thread count. Every
+    evaluation thread runs with ``--threads``."""
     import torch
 
     from algorithms import REGISTRY
@@ -806,8 +809,8 @@ def test_the_update_gets_the_cores_of_the_evaluation_threads(monkeypatch, tmp_pa
     monkeypatch.setitem(REGISTRY, "recording-es", Recording)
     monkeypatch.setattr(evaluate, "_play", recording_play)
     assert main(["--algo", "recording-es", "--preset", "smoke", *TINY, "--threads", "1", "--eval-threads", "2",
-                 "--out", str(tmp_path), "--no-record", "--quiet"]) == 0
-    assert seen == {"ask": {2}, "tell": {2}, "evaluate": {1}}
+                 "--numerics", numerics, "--out", str(tmp_path), "--no-record", "--quiet"]) == 0
+    assert seen == {"ask": {update}, "tell": {update}, "evaluate": {1}}
     assert torch.get_num_threads() == 1
 
 

@@ -408,3 +408,48 @@ def test_the_functional_regulariser_is_the_default_only_of_an_optimiser_with_no_
     assert names == ["functional-first-red-green-red-reg1-seed42",
                      "functional-first-red-green-red-functional-reg1-seed42",
                      "functional-only-red-green-red-reg1-seed42"]
+
+
+# ------------------------------------------------------------------------ one spelling per schedule
+
+@pytest.mark.parametrize("schedule, generations", [("red:2, green:2", 200), ("red:02,green:+2", 200),
+                                                   ("red:2,green", 2), (" red:2 ,green: 2", 7)])
+def test_a_schedule_is_stored_and_named_in_one_spelling(schedule, generations):
+    config = RunConfig(schedule=schedule, generations=generations).validate(machine=False)
+    assert config.schedule == "red:2,green:2" and config.default_name() == "neat-red-2-green-2-reg0-seed42"
+
+
+def test_a_list_that_is_a_named_schedule_is_its_name():
+    """config.json has always stored the named schedules by name: spelt out, they are the same run."""
+    for spelt, generations, name in (("red:200,green:200,red:200", 200, "red-green-red"),
+                                     ("red:3,red-nest-bottom,red:3", 3, "nest-relocation")):
+        assert RunConfig(schedule=spelt, generations=generations).validate(machine=False).schedule == name
+    assert RunConfig(schedule="red:5,green:5,red:5", generations=6).validate(machine=False).schedule == \
+        "red:5,green:5,red:5"
+
+
+def test_minus_zero_is_zero():
+    config = RunConfig(reg="-0").validate(machine=False)
+    assert math.copysign(1, config.reg) == 1 and config.default_name() == "neat-red-green-red-reg0-seed42"
+
+
+def test_a_run_stored_with_another_spelling_of_its_schedule_resumes_and_groups(tmp_path, capsys):
+    """A run directory written before schedules had one spelling (config.json and its checkpoints
+    hold ``red:01, green:+1``) is continued by the command that names the schedule otherwise, and
+    grouped with a run of the one spelling, as one configuration."""
+    from lifelong_evo import checkpoint
+    from lifelong_evo.commands.cli import main
+    from lifelong_evo.runs import load_runs
+
+    argv = ["--preset", "smoke", "--env", "duration=20", "--held-out-episodes", "1", "--no-record", "--quiet",
+            "--out", str(tmp_path)]
+    assert main([*argv, "--schedule", "red:1,green:1", "--name", "plain"]) == 0
+    shutil.copytree(tmp_path / "plain", tmp_path / "odd")
+    odd = RunDir(tmp_path / "odd")
+    written = json.loads(odd.config.read_text())
+    odd.config.write_text(json.dumps({**written, "schedule": "red:01, green:+1"}))
+    for path in odd.checkpoint_files():
+        payload = checkpoint.load(path)
+        checkpoint.save(path, {**payload, "config": {**payload["config"], "schedule": "red:01, green:+1"}})
+    assert main([*argv, "--schedule", "red:1,green:1", "--resume", "--name", "odd"]) == 0, capsys.readouterr().err
+    assert [len(group) for group in group_runs(load_runs([tmp_path]))] == [2]

@@ -51,3 +51,17 @@ def test_a_run_writes_the_stored_bytes_under_every_speed_setting(tmp_path, algo,
     assert [name for name in written if written[name] != _written(stored_run)[name]] == []
     rows = list(csv.DictReader(io.StringIO(written["metrics.csv"].decode())))
     assert len(rows) == 2 and max(float(row["best"]) for row in rows) > 0  # evolution met rewards
+
+
+def test_full_cmaes_updates_alike_on_any_thread_count(tmp_path):
+    """Full CMA-ES's update (its eigendecomposition and covariance update: MKL's linear algebra,
+    which splits its sums by the thread count) ran on ``--threads`` x ``--eval-threads`` torch
+    threads, so two evaluation threads sampled other populations than one from the first update
+    on. Under the portable arithmetic it runs on one thread: every thread setting writes the same
+    bytes. Small (population 50, 20-step episodes), but with the default 723 parameters, at which
+    the update's threads mattered; lambda 1, so that the distances to the reference show it."""
+    tiny = ["--algo", "cmaes", "--reg", "1", "--population", "50", "--evals", "1", "--env", "duration=20",
+            "--schedule", "red:2,green:2", "--held-out-episodes", "1", "--no-compile", "--no-record", "--quiet"]
+    for name, speed in (("one", ["--eval-threads", "1"]), ("two", ["--eval-threads", "2", "--threads", "2"])):
+        assert main([*tiny, *speed, "--out", str(tmp_path), "--name", name]) == 0
+    assert _written(tmp_path / "one") == _written(tmp_path / "two")

@@ -366,6 +366,23 @@ def test_variants_give_values_together(tmp_path, capsys):
         assert message in err and err.count("\n") == 1, err
 
 
+@pytest.mark.parametrize("argv, message", [
+    # two spellings of one schedule ran one experiment twice
+    (["--schedule", "red:2;red:02"], "the trials of {'schedule': 'red:2'} and of {'schedule': 'red:02'} are one "
+                                     "trial, {'schedule': 'red:2'}: give each value once"),
+    (["--schedule", "red:2,green;red:2,green:2", "--generations", "2"], "are one trial"),
+    (["--reg", "0,-0"], "reg lists a value twice ([0.0, 0.0]): give each value once"),
+    # the last of them was kept
+    (["--env", "duration=30", "--env", "duration=40,50"],
+     "--env duration is given twice (duration=30 and duration=40,50): give it once"),
+])
+def test_a_value_given_twice_is_refused(argv, message, tmp_path, capsys):
+    assert main(["sweep", "--preset", "smoke", *argv, "--out", str(tmp_path / "sweeps"), "--dry-run"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1, err
+    assert not (tmp_path / "sweeps").exists()
+
+
 def test_one_grid_for_algorithms_whose_options_differ(tmp_path, capsys):
     """[grid.<algo>] gives axes and fixed values to one algorithm's trials only: NEAT's genetics
     and lambdas next to an ES's sigma and lambdas, in one sweep."""

@@ -14,7 +14,7 @@ from .network import _ACTIVATION_SLOPES, UNCONNECTED_OUTPUTS_MODES, CompiledPopu
 
 N_OUTPUTS = 3
 """The outputs of every NEAT controller (one per wheel), as ``build_neat_config`` builds them."""
-INTEGER, NUMBER = (is_integer, "an integer"), (is_number, "a number")
+INTEGER, NUMBER = (is_integer, "an integer"), (is_number, "a finite number")
 TEXT, BOOLEAN = (lambda value: isinstance(value, str), "text"), (lambda value: isinstance(value, bool), "true or false")
 NODE_FIELDS = {"key": INTEGER, "bias": NUMBER, "response": NUMBER, "activation": TEXT, "aggregation": TEXT}
 CONNECTION_FIELDS = {"in": INTEGER, "out": INTEGER, "weight": NUMBER, "enabled": BOOLEAN, "innovation": INTEGER}

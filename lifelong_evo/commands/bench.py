@@ -134,14 +134,14 @@ def bench_algo(algo: str, population: int, n_envs: int, generations: int, device
     totals = {"ask": 0.0, "evaluate": 0.0, "tell": 0.0}
     threads = torch.get_num_threads()
     for generation in range(generations + 1):
-        with update_threads(threads, eval_threads):  # as the lifelong loop does
+        with update_threads(threads, eval_threads, numerics.mode()):  # as the lifelong loop does
             policies, t_ask = _timed(lambda: [optimizer.ask() for optimizer in optimizers])
         evaluations = [Evaluation(policy, config, [TASKS["red"]], n_envs, generator, device, compiled=compiled,
                                   eval_threads=eval_threads, cuda_graphs=cuda_graphs, numerics=numerics.mode())
                        for policy, generator in zip(policies, generators)]
         play = (lambda: [evaluations[0].run()]) if runs == 1 else (lambda: evaluate_together(evaluations))
         fitness, t_eval = _timed(play)
-        with update_threads(threads, eval_threads):
+        with update_threads(threads, eval_threads, numerics.mode()):
             _, t_tell = _timed(lambda: [optimizer.tell(f[0], optimizer.regularise(f[0]))
                                         for optimizer, f in zip(optimizers, fitness)])
         if generation:  # the first generation warms up

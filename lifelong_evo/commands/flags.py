@@ -111,14 +111,23 @@ def add_run_options(parser: argparse.ArgumentParser, axes: bool = False) -> None
 
 def parse_assignments(items: list[str], what: str) -> dict[str, str]:
     """``KEY=VALUE`` items as ``{KEY: VALUE}``, the value still text: validating the run's
-    configuration parses it by its option's declared type."""
+    configuration parses it by its option's declared type. A key given twice is refused: which
+    of its values was meant, no rule can tell."""
     values = {}
     for item in items:
         key, sep, text = item.partition("=")
         if not sep or not key.strip():
             raise UserError(f"{what} {item!r} is not KEY=VALUE")
+        check_once(what, key.strip(), text, values)
         values[key.strip()] = text
     return values
+
+
+def check_once(what: str, key: str, text: str, given: dict[str, str]) -> None:
+    """UserError where ``key`` (given ``text`` by flag ``what``) is among ``given``, the values
+    ``what`` gave so far, by key."""
+    if key in given:
+        raise UserError(f"{what} {key} is given twice ({key}={given[key]} and {key}={text}): give it once")
 
 
 def run_layers(args: argparse.Namespace) -> tuple[str, dict, dict]:

@@ -19,7 +19,7 @@ from ..errors import UserError
 from ..options import flag, parse_value, schema
 from ..run_names import check_run_name
 from ..tasks import TASK_TABLES
-from .flags import NESTED
+from .flags import NESTED, check_once
 
 RUN_FIELDS = [f.name for f in fields(RunConfig) if f.name not in NESTED]
 """Run options with a flag of their own."""
@@ -239,8 +239,11 @@ def build_grid(args: argparse.Namespace) -> Grid:
         if value is not None:
             put(key, value if isinstance(value, list) else [value])
     for nested, setter in NESTED.items():
+        given: dict[str, str] = {}
         for item in getattr(args, setter[2:]):
             sub, values = _split_assignment(item, setter)
+            check_once(setter, sub, ",".join(values), given)
+            given[sub] = ",".join(values)
             put(f"{nested}.{sub}", values)
     if getattr(args, "tasks_file", None):  # every trial defines the file's tasks, and the sweep file's others
         put("tasks", [{**fixed.get("tasks", {}), **load_tasks(args.tasks_file)}])
@@ -279,6 +282,7 @@ def build_grid(args: argparse.Namespace) -> Grid:
     elif name is not None:
         name = check_run_name(name, f"name in {args.config}")
     grid = Grid(axes, fixed, preset, name, by_algo)
+    givens: list[dict[str, Any]] = []  # each trial's axis values as given
     for combo in itertools.product(*axes.values()):
         common = dict(zip(axes, combo))
         algo_axes, algo_fixed = by_algo.get(common.get("algo", fixed.get("algo", RunConfig().algo)), ({}, {}))
@@ -287,7 +291,12 @@ def build_grid(args: argparse.Namespace) -> Grid:
             values = {k: values[k] for k in sorted(values, key=_axis_rank)}
             # a cluster's machines, not this one, must have the device and compiler its trials need
             config = _resolve(preset, {**fixed, **algo_fixed, **values}, values, machine=args.address is None)
-            values = {key: _typed_value(config, key) for key in values}
+            given, values = values, {key: _typed_value(config, key) for key in values}
+            twin = next((i for i, trial in enumerate(grid.trials) if trial.values == values), None)
+            if twin is not None:  # two spellings of one value (a schedule's: red:2 and red:02)
+                raise UserError(f"the trials of {givens[twin]} and of {given} are one trial, {values}: give each "
+                                "value once")
+            givens.append(given)
             grid.trials.append(Trial(trial_name(values, config), values, config))
     seen: dict[str, Trial] = {}
     for trial in grid.trials:
