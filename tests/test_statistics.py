@@ -372,6 +372,43 @@ def test_the_model_specific_lambda_is_chosen_on_training_figures_and_reported_he
     assert line.split(" | ")[3] == f"{chosen.mean:.2f} [{chosen.low:.2f}, {chosen.high:.2f}]"
 
 
+def test_the_lambda_is_chosen_on_held_out_figures_where_asked(lambdas):
+    """--choose-lambda-on held-out: the same criterion on the held-out block, where lambda 11
+    scores 20 + GREEN_GAIN + BASE_RED + RED_GAIN against lambda 0's 20 + BASE_RED, so lambda 11
+    wins at every seed and as the one lambda for all seeds (means 32 + 5 against 32), where the
+    training figures choose lambda 0 (the test above)."""
+    out, markdown = _compare(lambdas, "--choose-lambda-on", "held-out")
+    (selection,) = json.loads((out / "model_specific_lambda.json").read_text())
+    assert selection["chosen_on"] == "held-out"
+    assert [(c["seed"], c["reg"]) for c in selection["choices"]] == [(seed, 11.0) for seed in (1, 2, 3, 4, 5)]
+    shared = selection["one_lambda_for_all_seeds"]
+    assert shared["reg"] == 11.0 and shared["mean_per_lambda"] == [{"reg": 0.0, "mean": 32.0},
+                                                                   {"reg": 11.0, "mean": 37.0}]
+    part = markdown[markdown.index("## Model-specific lambda"):]
+    assert "chosen on the held-out episodes (--choose-lambda-on held-out)" in part
+    assert "at end of phase 1) (held-out) |" in part and "(selection-time) |" not in part
+    chosen = t_interval([BASE_RED[s] + RED_GAIN[s] for s in (1, 2, 3, 4, 5)])  # lambda 11's held-out red R_top
+    line = next(line for line in part.splitlines() if line.startswith("| red at end of phase 1 |"))
+    assert line.split(" | ")[3] == f"{chosen.mean:.2f} [{chosen.low:.2f}, {chosen.high:.2f}]"
+    # the optimism table still holds both figures of the chosen runs: training 28 + s, held-out 32 + 5 on average
+    optimism = next(line for line in part.splitlines() if line.startswith("| chosen per seed |"))
+    assert optimism.split(" | ")[2].startswith("31.00 ") and optimism.split(" | ")[3].startswith("37.00 ")
+
+
+def test_a_held_out_choice_refuses_a_run_without_held_out_scores(lambdas, capsys):
+    summary_file = lambdas / "reg11-seed3" / "summary.json"
+    summary_json = json.loads(summary_file.read_text())
+    del summary_json["held_out"]
+    summary_file.write_text(json.dumps(summary_json))
+    out = lambdas.parent / "cmp"
+    assert cli_main(["compare", str(lambdas), "--out", str(out), "--choose-lambda-on", "held-out"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --choose-lambda-on held-out: reg11-seed3 has no held-out score") and \
+        err.count("\n") == 1
+    assert not out.exists()
+    _compare(lambdas)  # the training figures still choose
+
+
 def test_a_lambda_given_per_seed_is_reported_beside_the_chosen_one(lambdas):
     """--per-seed-lambda (the paper's own per-seed table): the named runs form the configuration
     reg=given, with the same tables as the model-specific choice, held-out where the runs have it."""

@@ -68,7 +68,8 @@ and their mean ``FT_area`` once both have ended every phase, from the two metric
 over the seeds that have a partner.
 
 Model-specific lambda ("m.s. reg"): where a configuration ran several lambdas, the lambda per
-seed that ``analysis/model_specific.py`` chooses, reported as a configuration of its own; with
+seed that ``analysis/model_specific.py`` chooses (on the training episodes, or with
+``--choose-lambda-on held-out`` on the held-out ones), reported as a configuration of its own; with
 ``--per-seed-lambda``, beside it the lambdas given per seed (``reg=given``). The
 tables and their figures are ``analysis/tables.py``, the statistics ``analysis/statistics.py``,
 the overlay figures ``analysis/figures.py``.
@@ -91,8 +92,8 @@ from ..rundir import RunDir
 from ..runs import BASELINES_OFF, Run, config_key, configuration_of, describe_config, group_runs, load_runs
 from ..schedule import schedule_of
 from ..summary_json import SummaryLayout
-from .model_specific import (CRITERION, given_choices, model_specific_label, model_specific_report,
-                             select_model_specific)
+from .model_specific import (CRITERION, given_choices, held_out_selection_score, model_specific_label,
+                             model_specific_report, select_model_specific)
 from .statistics import Difference, difference, holm, seed_order
 from .tables import (
     CONTROLLERS,
@@ -541,23 +542,29 @@ class Comparison:
 
 
 def comparison(paths, episodes: str = "held-out", baseline: dict[str, str] | None = None,
-               family: HolmFamily = (), lambda_per_seed: dict[int, float] | None = None) -> Comparison:
+               family: HolmFamily = (), lambda_per_seed: dict[int, float] | None = None,
+               choose_on: str = SELECTION_TIME) -> Comparison:
     """``compare_table`` of the runs at or under ``paths`` plus, where a configuration ran several
-    lambdas, the model-specific lambda rows, and with ``lambda_per_seed`` the given ones
+    lambdas, the model-specific lambda rows, chosen on ``choose_on``'s figures (held-out: UserError
+    where a run chosen among has no held-out scores), and with ``lambda_per_seed`` the given ones
     (``--per-seed-lambda``: UserError where no such configuration ran every run it names)."""
     runs = load_runs(paths, with_metrics=False)
     rows, markdown = _table(runs, episodes, baseline, family)
     names = [run.path.name for run in runs]
     tags = names if len(set(names)) == len(names) else [str(run.path) for run in runs]
     configs = [run.config for run in runs]
-    selections = select_model_specific([(run.config, run.summary, tag) for run, tag in zip(runs, tags)])
+    triples = [(run.config, run.summary, tag) for run, tag in zip(runs, tags)]
+    if choose_on == HELD_OUT:
+        _check_held_out(select_model_specific(triples), dict(zip(tags, (r.summary for r in runs))))
+    selections = select_model_specific(triples, choose_on)
     if lambda_per_seed:
         selections = _with_given(selections, lambda_per_seed)
     if not selections:
         return Comparison(rows, markdown, None, [])
     ms_rows, ms_markdown = model_specific_report(selections, dict(zip(tags, (r.summary for r in runs))), configs,
-                                                 episodes)
+                                                 episodes, choose_on)
     ms_json = [{"configuration": model_specific_label(s["config"], configs), "criterion": CRITERION,
+                "chosen_on": choose_on,
                 "choices": s["choices"], "left_out": [{"seed": seed, "lambdas": regs}
                                                       for seed, regs in s["left_out"].items()],
                 "one_lambda_for_all_seeds": {
@@ -567,6 +574,18 @@ def comparison(paths, episodes: str = "held-out", baseline: dict[str, str] | Non
                 **({"given": s["given"]} if s.get("given") else {})}
                for s in selections]
     return Comparison(rows + ms_rows, markdown + "\n" + ms_markdown, ms_markdown, ms_json)
+
+
+def _check_held_out(selections: list[dict[str, Any]], summaries: dict[Any, dict[str, Any]]) -> None:
+    """UserError naming the runs a lambda is chosen among (``selections``, chosen on the training
+    episodes) whose held-out scores the criterion cannot be read from; otherwise nothing."""
+    lacking = sorted({str(tag) for selection in selections for found in selection["candidates"].values()
+                      for _, _, tag in found if held_out_selection_score(summaries[tag]) is None})
+    if lacking:
+        shown = ", ".join(lacking[:3]) + (f" and {len(lacking) - 3} more" if len(lacking) > 3 else "")
+        raise UserError(f"--choose-lambda-on held-out: {shown} has no held-out score of {CRITERION} "
+                        "(summary.json's held_out block, written by runs with held-out episodes): choose on the "
+                        "training episodes (--choose-lambda-on selection-time, the default), or compare runs scored held-out")
 
 
 def _with_given(selections: list[dict[str, Any]], lambda_per_seed: dict[int, float]) -> list[dict[str, Any]]:

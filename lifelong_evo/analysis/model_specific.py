@@ -2,8 +2,8 @@
 without lambda and each seed, the lambda maximising ``C_top(phase 1) + R_top(task of phase 0 at
 the end of phase 1)`` (the top individual's current performance plus its retention of the first
 task at the end of the second task: the controller one would deploy, good at both; ties go to the
-smaller lambda), chosen on the selection-time figures (the training episodes) and reported as a
-configuration of its own with the chosen lambda per seed, its tables held-out where the chosen
+smaller lambda), chosen on the selection-time figures (the training episodes; ``--choose-lambda-on
+held-out``: on the held-out episodes, ``CHOOSE_ON``) and reported as a configuration of its own with the chosen lambda per seed, its tables held-out where the chosen
 runs have the block; beside it the one lambda for all seeds, the highest mean of the same
 criterion over the seeds (``select_model_specific``, ``model_specific_report``). Every seed chooses
 among the same lambdas: a seed without a finished run of each is left out, and named. Weight
@@ -29,9 +29,15 @@ from ..config import RunConfig
 from ..errors import UserError
 from ..runs import configuration_of, describe_config
 from ..summary_json import SummaryLayout
-from .tables import OVERVIEW, SELECTION_TIME, Estimate, cell, csv_rows, estimates, overview_row, section, table
+from .tables import HELD_OUT, OVERVIEW, SELECTION_TIME, Estimate, cell, csv_rows, estimates, overview_row, section, table
 
 CRITERION = "C_top(phase 1) + R_top(task of phase 0 at end of phase 1)"
+
+CHOOSE_ON = (SELECTION_TIME, HELD_OUT)
+"""The episodes a lambda can be chosen on (``compare --choose-lambda-on``): the top individual's
+figures on the training episodes it was selected on (the paper's rule, the default), or on the
+held-out episodes (a study whose plan chooses on held-out figures; every candidate run needs the
+held-out block)."""
 
 
 def selection_score(summary: dict[str, Any]) -> float | None:
@@ -61,8 +67,9 @@ def optimism_rows(selection: dict[str, Any], summaries: dict[Any, dict[str, Any]
     the per-seed differences with its t-interval. The chosen runs' difference holds the selection
     bias every lambda has plus what choosing on the evaluated seed adds. Empty without held-out scores."""
     def row(label: str, picks: list[tuple[Any, float, Any]]) -> list[str] | None:
-        pairs = [(seed, score, held_out_selection_score(summaries[tag])) for seed, score, tag in picks]
-        if not pairs or any(held is None for _, _, held in pairs):
+        pairs = [(seed, selection_score(summaries[tag]), held_out_selection_score(summaries[tag]))
+                 for seed, _, tag in picks]
+        if not pairs or any(score is None or held is None for _, score, held in pairs):
             return None
         seeds = [seed for seed, _, _ in pairs]
         return [label, str(len(pairs)), str(Estimate.of([s for _, s, _ in pairs], seeds)),
@@ -116,11 +123,13 @@ def _without_lambda(config: dict[str, Any]) -> str:
     return json.dumps(rest, sort_keys=True, default=str)
 
 
-def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]) -> list[dict[str, Any]]:
+def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]],
+                          choose_on: str = SELECTION_TIME) -> list[dict[str, Any]]:
     """The model-specific lambda: ``runs`` are (config.json dict, summary.json dict, tag) triples;
     for each configuration without lambda that was run with several lambdas, and each of its seeds
     that ran every one of them (and has reached the end of phase 1), the run whose lambda maximises
-    ``selection_score`` (ties: the smaller lambda). What is chosen among is ``swept_value``: lambda,
+    ``selection_score`` (``choose_on`` held-out: ``held_out_selection_score``; ties: the smaller
+    lambda). What is chosen among is ``swept_value``: lambda,
     or for weight protection the pair (lambda_1, lambda_2), one value. A run without regulariser
     (lambda 0) that differs from such a configuration only in the regulariser and its options
     (``Optimizer.regularizer_options``) is a candidate where its regulariser (config.json's: the
@@ -131,7 +140,7 @@ def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]
     Returns one dict per such configuration with at least one such seed: ``config`` (the config
     of one of its regularised runs), ``lambdas`` (ascending), ``choices``, one per such seed in
     ascending order: ``seed``, ``reg`` (its swept value), ``score``, ``tag``; ``shared``, the one
-    lambda for every seed: the one whose mean ``selection_score`` over those seeds is highest (ties:
+    lambda for every seed: the one whose mean of that score over those seeds is highest (ties:
     the smaller lambda), with ``means`` (lambda -> that mean) and, where every such seed has a
     lambda-0 run that is the point of comparison, ``lambda_0`` (its mean); ``left_out``: the seeds
     that ran only some of the lambdas, with those they ran (every seed chooses among the same
@@ -140,8 +149,9 @@ def select_model_specific(runs: list[tuple[dict[str, Any], dict[str, Any], Any]]
     groups: dict[str, dict[str, Any]] = {}
     # regularised runs first: they make the configurations, which each lambda-0 run then joins
     ordered = sorted(runs, key=lambda run: not float(run[0]["reg"]))
+    criterion = held_out_selection_score if choose_on == HELD_OUT else selection_score
     for config, summary, tag in ordered:
-        score = selection_score(summary)
+        score = criterion(summary)
         scored = score is not None and math.isfinite(score)
         seed, value = config.get("seed"), swept_value(config)
         if float(config["reg"]):
@@ -237,16 +247,19 @@ def left_out_note(selection: dict[str, Any]) -> str:
 
 
 def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any, dict[str, Any]],
-                          all_configs: list[dict[str, Any]], episodes: str = "held-out"
-                          ) -> tuple[list[dict[str, Any]], str]:
+                          all_configs: list[dict[str, Any]], episodes: str = "held-out",
+                          choose_on: str = SELECTION_TIME) -> tuple[list[dict[str, Any]], str]:
     """``compare_table``'s rows and markdown for the m.s. configurations (the chosen lambdas in
     ``reg``): an overview line per m.s. configuration with the lambda per seed and the criterion,
     then its tables; means over seeds of the chosen runs with their 95% t-interval. The lambdas
-    are chosen on the selection-time figures; the chosen runs are reported as ``episodes`` says
+    were chosen on ``choose_on``'s figures (``select_model_specific``); the chosen runs are reported as ``episodes`` says
     (held-out where they have the block, by default). A selection with ``given`` choices
     (``given_choices``) adds a configuration ``reg=given`` with those, reported the same way."""
     rows: list[dict[str, Any]] = []
     overview, sections = [], []
+    chosen_on = ("held-out episodes (--choose-lambda-on held-out)" if choose_on == HELD_OUT
+                 else "training episodes (selection-time figures)")
+    seen = {kind: " it was chosen on" if kind == choose_on else "" for kind in CHOOSE_ON}
     for selection in selections:
         label = model_specific_label(selection["config"], all_configs)
         shared = selection["shared"]
@@ -259,33 +272,34 @@ def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any,
                              "lambda per seed, as given (--per-seed-lambda): %s"))
         for name, tag, choices, intro in reported:
             lambdas = ", ".join(f"{c['seed']}: {lambda_text(c['reg'])}" for c in choices)
-            found = {(SELECTION_TIME, CRITERION): ("selection", Estimate.of([c["score"] for c in choices],
+            found = {(choose_on, CRITERION): ("selection", Estimate.of([c["score"] for c in choices],
                                                                             [c["seed"] for c in choices])),
                      **estimates([(c["seed"], summaries[c["tag"]]) for c in choices])}
             rows += csv_rows(name, selection["config"], found, reg=f"{tag} " + " ".join(lambda_text(c["reg"]) for c in choices))
             overview.append([name, len(choices), lambdas, one if tag == "m.s." else "",
-                             cell(found, (SELECTION_TIME, CRITERION)),
+                             cell(found, (choose_on, CRITERION)),
                              *overview_row(name, str(len(choices)), found, episodes)[2:]])
             sections.append(section(f"### {name}", intro % lambdas, found, episodes))
             optimism = optimism_rows({**selection, "choices": choices}, summaries)
             if optimism:
                 sections.append("\n".join([
-                    f"How optimistic the choice is: {CRITERION} on the training episodes it was chosen on "
-                    "(selection-time) and on the held-out episodes, and the per-seed difference; beside it each "
-                    "lambda run on every seed, whose difference is the selection bias any top individual has.", "",
+                    f"How optimistic the choice is: {CRITERION} on the training episodes{seen[SELECTION_TIME]} "
+                    f"(selection-time) and on the held-out episodes{seen[HELD_OUT]}, and the per-seed difference; "
+                    "beside it each lambda run on every seed, whose difference is the selection bias any top "
+                    "individual has.", "",
                     *table(["runs", "n seeds", "selection-time", "held-out", "selection-time - held-out"], optimism),
                     ""]))
     markdown = "\n".join([
         "## Model-specific lambda (m.s. reg)", "",
         f"Per configuration and seed, the lambda of the sweep maximising {CRITERION} (the top individual's "
         "current performance plus its retention of the first task, at the end of the second task; ties: "
-        "the smaller lambda), from summary.json: chosen on the training episodes (selection-time figures). "
+        f"the smaller lambda), from summary.json: chosen on the {chosen_on}. "
         "The chosen runs are reported below with held-out figures where they have them (each table names its "
         "episodes); mean over seeds [95% t-interval]. Every seed chooses among the same lambdas: a seed that "
         "did not finish every lambda's second task is left out (each section names it). One lambda for all "
         "seeds: the one with the highest mean of the criterion over those seeds (ties: the smaller), with each "
         "lambda's mean.", "",
         *table(["configuration", "n seeds", "lambda per seed", "one lambda for all seeds (mean per lambda)",
-                f"{CRITERION} (selection-time)", *OVERVIEW], overview), "",
+                f"{CRITERION} ({choose_on})", *OVERVIEW], overview), "",
         *sections]).rstrip("\n")
     return rows, markdown

@@ -1,5 +1,5 @@
 """``python -m lifelong_evo compare RUN_OR_DIR... [--out DIR] [--baseline KEY=VALUE,...] [--holm ...]
-[--per-seed-lambda SEED=LAMBDA,...] [--episodes ...]``: configurations side by side over seeds, and
+[--per-seed-lambda SEED=LAMBDA,...] [--choose-lambda-on ...] [--episodes ...]``: configurations side by side over seeds, and
 each against its baseline.
 
 The verb parses and calls: ``analysis.comparison`` computes the tables (its docstring says what
@@ -16,7 +16,7 @@ from pathlib import Path
 from ..analysis.comparison import (EPISODES_CHOICES, Comparison, comparison, parse_baseline, parse_holm,
                                    write_report)
 from ..analysis.figures import overlay_figures
-from ..analysis.model_specific import parse_per_seed_lambda
+from ..analysis.model_specific import CHOOSE_ON, parse_per_seed_lambda
 from ..runs import is_run_dir
 
 
@@ -45,6 +45,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="beside the model-specific lambda, a lambda given per seed (e.g. a paper's own "
                              "per-seed table: 13=5,17=5,24=5,31=11,42=11), reported as the configuration "
                              "reg=given with the same tables, for each configuration that ran those runs")
+    parser.add_argument("--choose-lambda-on", choices=CHOOSE_ON, default=CHOOSE_ON[0],
+                        help="the figures the model-specific lambda and the one lambda for all seeds are chosen on: "
+                             "selection-time (the default, the paper's rule: the top individual on the training "
+                             "episodes it was selected on) or held-out (a plan that chooses on held-out figures; "
+                             "every run chosen among needs summary.json's held_out block)")
     parser.add_argument("--episodes", choices=EPISODES_CHOICES, default="held-out",
                         help="the deployed controllers' figures in the tables: held-out (the default: where the "
                              "runs have summary.json's held_out block, else the selection-time ones), training "
@@ -55,7 +60,7 @@ def requested_comparison(args: argparse.Namespace) -> Comparison:
     """The ``comparison`` that ``compare``'s parsed command line ``args`` asks for, written nowhere
     (UserError for a bad --baseline, --holm or --per-seed-lambda)."""
     return comparison(args.paths, args.episodes, parse_baseline(args.baseline), parse_holm(args.holm),
-                      parse_per_seed_lambda(args.per_seed_lambda))
+                      parse_per_seed_lambda(args.per_seed_lambda), args.choose_lambda_on)
 
 
 def main(args: argparse.Namespace) -> int:
