@@ -361,15 +361,18 @@ class RunDir:
             candidates = [folder / "final-top.json"]
         elif re.fullmatch(r"task\d+", which):
             candidates = sorted(folder.glob(f"{which}-*-top.json"))
-        else:
+        elif Path(which).name == which and which not in (".", ".."):
             candidates = [folder / f"{which}.json", folder / f"{which}-top.json"]
+        else:  # a name with a folder in it ('../config') would read outside controllers/
+            candidates = []
         for candidate in candidates:
             if candidate.is_file():
                 return candidate, which
         if not available:
             raise RunDirError(f"{self.path} has no stored controller yet (controllers/ is empty): "
                               "they are written at each task end")
-        raise RunDirError(f"no controller {which!r} in {folder}: use final, task<N> or one of {', '.join(available)}")
+        raise RunDirError(f"no controller {which!r} in {folder}: use final, task<N>, one of {', '.join(available)} "
+                          "or the path of a controller .json")
 
     # -- checkpoints/ -----------------------------------------------------------------------------
 

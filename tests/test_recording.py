@@ -233,6 +233,7 @@ def test_replay_prints_and_records(es_run, capsys):
 @pytest.mark.parametrize("argv, message", [
     (["--task", "blue"], "unknown task 'blue': choose one of red, green, purple, cyan"),
     (["--controller", "task7"], "no controller 'task7'"),
+    (["--controller", "../config"], "no controller '../config'"),  # a name, not a way out of controllers/
     (["--episodes", "0"], "argument --episodes: '0' is not an integer from 1 to 10000"),
     (["--episodes", str(10**11)], "argument --episodes: '100000000000' is not an integer from 1 to 10000"),
     (["--seed", str(10**23)], "argument --seed: '100000000000000000000000' is not an integer from 0 to "),
