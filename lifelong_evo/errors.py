@@ -30,6 +30,10 @@ class RunDirError(UserError):
     (``lifelong_evo.rundir``, whose readers raise it; ``lifelong_evo.run_files`` checks the files)."""
 
 
+RESTORE = "restore it from a copy of the run, or run the run again"
+"""A RunDirError's way out for a damaged file: the toolkit wrote it, so only another copy can mend it."""
+
+
 class Parser(argparse.ArgumentParser):
     """argparse with the command line's error contract: one line, ``error: ...``, and exit status 2."""
 

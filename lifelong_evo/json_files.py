@@ -8,10 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from .checkpoint import atomic_write_bytes
-from .errors import RunDirError
-
-FIX = "restore it from a copy of the run, or run the run again"
-"""The way out for a damaged file: the toolkit wrote it, so only another copy can mend it."""
+from .errors import RESTORE, RunDirError
 
 
 def write_json(path: Path, value: Any) -> None:
@@ -30,8 +27,8 @@ def read_json(path: Path) -> Any:
     except (FileNotFoundError, NotADirectoryError):
         raise RunDirError(f"{path} does not exist: is this a run directory?") from None
     except UnicodeDecodeError as error:  # JSON is UTF-8 text: a damaged file
-        raise RunDirError(f"{path} is not UTF-8 text (byte {error.start} cannot be decoded): {FIX}") from None
+        raise RunDirError(f"{path} is not UTF-8 text (byte {error.start} cannot be decoded): {RESTORE}") from None
     except OSError as error:
         raise RunDirError(f"cannot read {path}: {error.strerror or error}") from None
     except json.JSONDecodeError as error:
-        raise RunDirError(f"{path} is not valid JSON ({error}): {FIX}") from None
+        raise RunDirError(f"{path} is not valid JSON ({error}): {RESTORE}") from None

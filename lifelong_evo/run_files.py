@@ -37,8 +37,7 @@ from algorithms import REGISTRY, ExportError, check_export
 from envs import ConfigError, ForagingConfig
 
 from .config import DEFAULT_REGULARISER, RunConfig
-from .errors import RunDirError
-from .json_files import FIX
+from .errors import RESTORE, RunDirError
 from .options import LISTED_BY, parse_table, parse_value, schema
 from .schedule import ScheduleError, canonical_schedule
 from .summary_json import SummaryLayout
@@ -72,55 +71,55 @@ def check_config(values: Any, path: Path, written_beside: Iterable[str] = ()) ->
     to its field's type within its bounds; RunDirError naming the key otherwise. ``written_beside``:
     config.json's keys that are no setting (the resolved options, versions), left unchecked."""
     if not isinstance(values, dict):
-        raise RunDirError(f"{path} holds {_kind(values)}, not a JSON object of run settings: {FIX}")
+        raise RunDirError(f"{path} holds {_kind(values)}, not a JSON object of run settings: {RESTORE}")
     declared = schema(RunConfig)
     settings = {**RunConfig.WRITTEN_BEFORE,
                 **{key: value for key, value in values.items() if key not in set(written_beside)}}
     unknown = sorted(set(settings) - set(declared))
     if unknown:
         raise RunDirError(f"{path} has the key(s) {', '.join(map(repr, unknown))}, which are no run setting (the "
-                          f"settings are RunConfig's fields): {FIX}")
+                          f"settings are RunConfig's fields): {RESTORE}")
     typed: dict[str, Any] = {}
     for name, value in settings.items():
         if name in TABLES:
             if not isinstance(value, dict):
                 raise RunDirError(f"{path}, key {name!r}: {_shown(value)} is {_kind(value)}, not an object of "
-                                  f"options: {FIX}")
+                                  f"options: {RESTORE}")
             typed[name] = value
             continue
         try:
             typed[name] = parse_value(declared[name], value, text=False)
         except ConfigError as error:
-            raise RunDirError(f"{path}, key {name!r}: {error}: {FIX}") from None
+            raise RunDirError(f"{path}, key {name!r}: {error}: {RESTORE}") from None
     algo = typed.get("algo", RunConfig.algo)
     optimizer = REGISTRY.get(algo)
     try:
         typed["env"] = parse_table(ForagingConfig, typed.get("env", {}), "environment", "option", LISTED_BY, text=False)
     except ConfigError as error:
-        raise RunDirError(f"{path}, key 'env': {error}: {FIX}") from None
+        raise RunDirError(f"{path}, key 'env': {error}: {RESTORE}") from None
     if optimizer is not None:  # an optimiser this process does not know: the script that registers it knows its options
         try:
             typed["algo_options"] = parse_table(optimizer.Options, typed.get("algo_options", {}), algo, "option",
                                                 f"{LISTED_BY} --algo {algo}", text=False)
             optimizer.Options(**typed["algo_options"])
         except (ConfigError, ValueError) as error:
-            raise RunDirError(f"{path}, key 'algo_options': {error}: {FIX}") from None
+            raise RunDirError(f"{path}, key 'algo_options': {error}: {RESTORE}") from None
     config = RunConfig(**typed)
     config = replace(config, regulariser=RunConfig.regulariser_of(config.to_dict()))  # an older config.json's
     applies = getattr(REGISTRY.get(config.algo), "regularisers", None)
     if applies is not None and config.regulariser not in (*applies, DEFAULT_REGULARISER):
         raise RunDirError(f"{path}, key 'regulariser': {_shown(config.regulariser)} is no regulariser of "
-                          f"{config.algo} (it applies {', '.join(applies) or 'none'}): {FIX}")
+                          f"{config.algo} (it applies {', '.join(applies) or 'none'}): {RESTORE}")
     try:
         config = replace(config, schedule=canonical_schedule(config.phases(), config.generations))
     except ScheduleError as error:
-        raise RunDirError(f"{path}, key 'schedule': {error}: {FIX}") from None
+        raise RunDirError(f"{path}, key 'schedule': {error}: {RESTORE}") from None
     except ConfigError as error:  # a [tasks.NAME] table that defines no task
-        raise RunDirError(f"{path}, key 'tasks': {error}: {FIX}") from None
+        raise RunDirError(f"{path}, key 'tasks': {error}: {RESTORE}") from None
     try:
         config.env_config()
     except (ConfigError, TypeError, ValueError) as error:  # an option ForagingConfig does not have or take
-        raise RunDirError(f"{path}, key 'env': {error}: {FIX}") from None
+        raise RunDirError(f"{path}, key 'env': {error}: {RESTORE}") from None
     return config
 
 
@@ -128,19 +127,19 @@ def check_summary(values: Any, path: Path, config: RunConfig) -> dict[str, Any]:
     """summary.json ``values`` (read from ``path``), checked against its run's ``config`` (see the
     module docstring); RunDirError naming the key otherwise."""
     if not isinstance(values, dict):
-        raise RunDirError(f"{path} holds {_kind(values)}, not a JSON object of a run's figures: {FIX}")
+        raise RunDirError(f"{path} holds {_kind(values)}, not a JSON object of a run's figures: {RESTORE}")
     schedule = [phase.name for phase in config.phases()]
     phases = values.get(SummaryLayout.PHASES)
     where = f"{path}, key {SummaryLayout.PHASES!r}"
     if not isinstance(phases, list) or not all(isinstance(task, str) for task in phases):
-        raise RunDirError(f"{where}: {_shown(phases)} is not a list of task names: {FIX}")
+        raise RunDirError(f"{where}: {_shown(phases)} is not a list of task names: {RESTORE}")
     if len(phases) > len(schedule):
         raise RunDirError(f"{where}: {len(phases)} phases, more than the {len(schedule)} of config.json's schedule "
-                          f"{config.schedule!r}: the summary is another run's or damaged: {FIX}")
+                          f"{config.schedule!r}: the summary is another run's or damaged: {RESTORE}")
     for index, (task, planned) in enumerate(zip(phases, schedule)):
         if task != planned:
             raise RunDirError(f"{where}, item {index}: {task!r}, where config.json's schedule {config.schedule!r} "
-                              f"has {planned!r}: the summary is another run's or damaged: {FIX}")
+                              f"has {planned!r}: the summary is another run's or damaged: {RESTORE}")
     _check_figures(values, f"{path}", schedule)
     held = values.get(SummaryLayout.HELD_OUT)
     if held is not None:
@@ -182,21 +181,21 @@ def _check_held_out(held: Any, where: str, schedule: list[str]) -> None:
     """summary.json's ``held_out`` block: its episodes, its phases (the schedule's first tasks), the
     scores of each controller per task and its figures (``_check_figures``)."""
     if not isinstance(held, dict):
-        raise RunDirError(f"{where}: {_shown(held)} is {_kind(held)}, not an object: {FIX}")
+        raise RunDirError(f"{where}: {_shown(held)} is {_kind(held)}, not an object: {RESTORE}")
     episodes = held.get(SummaryLayout.EPISODES)
     if not _is_integer(episodes) or episodes < 1:
-        raise RunDirError(f"{where}, key 'episodes': {_shown(episodes)} is not a positive integer: {FIX}")
+        raise RunDirError(f"{where}, key 'episodes': {_shown(episodes)} is not a positive integer: {RESTORE}")
     phases = held.get(SummaryLayout.PHASES)
     if not isinstance(phases, list) or phases != schedule[:len(phases)]:
         raise RunDirError(f"{where}, key 'phases': {_shown(phases)} is not the first tasks of config.json's "
-                          f"schedule {schedule}: {FIX}")
+                          f"schedule {schedule}: {RESTORE}")
     scores = held.get(SummaryLayout.SCORES, {})
     if not isinstance(scores, dict):
-        raise RunDirError(f"{where}, key 'scores': {_shown(scores)} is {_kind(scores)}, not an object: {FIX}")
+        raise RunDirError(f"{where}, key 'scores': {_shown(scores)} is {_kind(scores)}, not an object: {RESTORE}")
     for name, by_task in scores.items():
         if not isinstance(by_task, dict):
             raise RunDirError(f"{where}, key 'scores', {name!r}: {_shown(by_task)} is not an object of a score per "
-                              f"task: {FIX}")
+                              f"task: {RESTORE}")
         for task, value in by_task.items():
             _figure(value, f"{where}, key 'scores', {name!r}, {task!r}")
     _check_figures(held, where, schedule)
@@ -204,28 +203,28 @@ def _check_held_out(held: Any, where: str, schedule: list[str]) -> None:
 
 def _list(value: Any, where: str) -> list:
     if not isinstance(value, list):
-        raise RunDirError(f"{where}: {_shown(value)} is {_kind(value)}, not a list: {FIX}")
+        raise RunDirError(f"{where}: {_shown(value)} is {_kind(value)}, not a list: {RESTORE}")
     return value
 
 
 def _figure(value: Any, where: str) -> None:
     """A figure: a number, or null where none was measured."""
     if value is not None and not _is_number(value):
-        raise RunDirError(f"{where}: {_shown(value)} is {_kind(value)}, not a number: {FIX}")
+        raise RunDirError(f"{where}: {_shown(value)} is {_kind(value)}, not a number: {RESTORE}")
 
 
 def _row(row: Any, where: str, phase_key: tuple[str, range], schedule: list[str]) -> None:
     """A forgetting row or a stability-gap entry: an object whose ``phase_key`` names a phase in
     its range, whose ``task`` is a task of the schedule, and whose every other value is a figure."""
     if not isinstance(row, dict):
-        raise RunDirError(f"{where}: {_shown(row)} is {_kind(row)}, not an object: {FIX}")
+        raise RunDirError(f"{where}: {_shown(row)} is {_kind(row)}, not an object: {RESTORE}")
     key, phases = phase_key
     if not _is_integer(row.get(key)) or row[key] not in phases:
         raise RunDirError(f"{where}, {key!r}: {_shown(row.get(key))} is not a phase from {phases.start} to "
-                          f"{phases.stop - 1} of config.json's schedule: {FIX}")
+                          f"{phases.stop - 1} of config.json's schedule: {RESTORE}")
     if row.get("task") not in schedule:
         raise RunDirError(f"{where}, 'task': {_shown(row.get('task'))} is not a task of config.json's schedule "
-                          f"({', '.join(dict.fromkeys(schedule))}): {FIX}")
+                          f"({', '.join(dict.fromkeys(schedule))}): {RESTORE}")
     for name, value in row.items():
         if name not in (key, "task"):
             _figure(value, f"{where}, {name!r}")
@@ -242,13 +241,13 @@ def check_metrics(rows: list[dict[str, str]], path: Path, config: RunConfig) -> 
         index, generation = int(row["task_index"]), int(row["generation"])
         if index >= len(schedule):
             raise RunDirError(f"{path} line {line}, column task_index: {index} is beyond the {len(schedule)} phases "
-                              f"of config.json's schedule {config.schedule!r} (0 to {len(schedule) - 1}): {FIX}")
+                              f"of config.json's schedule {config.schedule!r} (0 to {len(schedule) - 1}): {RESTORE}")
         if row["task"] != schedule[index]:
             raise RunDirError(f"{path} line {line}, column task: {row['task']!r}, where config.json's schedule "
-                              f"{config.schedule!r} has {schedule[index]!r} at phase {index}: {FIX}")
+                              f"{config.schedule!r} has {schedule[index]!r} at phase {index}: {RESTORE}")
         if previous is not None and generation <= previous:
             raise RunDirError(f"{path} line {line}, column generation: {generation} after generation {previous} on "
-                              f"line {line - 1}: each generation is written once, in order: {FIX}")
+                              f"line {line - 1}: each generation is written once, in order: {RESTORE}")
         previous = generation
     return rows
 
@@ -259,6 +258,6 @@ def check_controller(exported: Any, path: Path, config: RunConfig) -> dict[str, 
     try:
         check_export(exported, config.env_config().obs_dim)
     except ExportError as error:
-        raise RunDirError(f"{path} is not a controller this run can play: {error}: {FIX}, or pick another "
+        raise RunDirError(f"{path} is not a controller this run can play: {error}: {RESTORE}, or pick another "
                           "controller") from None
     return exported
