@@ -114,7 +114,13 @@ class RunConfig:
                                                  "checkpoint_every")
     """How a run is computed, not what: they change none of its numbers (docs/usage.md,
     Reproducibility), so runs that differ only in them (and in the seed) are one configuration;
-    a resumed run keeps them."""
+    a resumed run keeps them, but for ``PORTABLE_SPEED_SETTINGS`` under the portable arithmetic."""
+    PORTABLE_SPEED_SETTINGS: ClassVar[tuple[str, ...]] = ("threads", "eval_threads", "compile", "checkpoint_every")
+    """The speed settings that change no byte of a run under the portable arithmetic on any x86-64
+    CPU (``tests/test_same_numbers_anywhere.py``): a portable run may be resumed, or its first task
+    taken over, under others (a busy machine's thread count, another node's compiler). Under the
+    native arithmetic another thread count or compiled code rounds otherwise, so a resumed run
+    keeps them; and a run keeps its device, whose arithmetic is not the CPU's."""
     OUTPUT_SETTINGS: ClassVar[tuple[str, ...]] = ("record", "episodes_every", "gap_window")
     """What a run records besides its numbers, which they never change: a resumed run may change them."""
     BASELINE_SETTINGS: ClassVar[tuple[str, ...]] = ("rehearsal", "joint", "from_scratch", "reference_every", "archive")
@@ -145,7 +151,16 @@ class RunConfig:
         if filled:
             filled["regulariser"] = cls.regulariser_of(filled)
             filled["schedule"] = cls.schedule_spelling(filled)
-        return {k: v for k, v in json.loads(json.dumps(filled)).items() if k not in cls.OUTPUT_SETTINGS}
+        free = cls.free_settings(values) if values else cls.OUTPUT_SETTINGS
+        return {k: v for k, v in json.loads(json.dumps(filled)).items() if k not in free}
+
+    @classmethod
+    def free_settings(cls, values: dict[str, Any]) -> tuple[str, ...]:
+        """The settings a run of ``values`` (as config.json holds them) may change when resumed or
+        when another run takes over its first task: the output settings and, under the portable
+        arithmetic, ``PORTABLE_SPEED_SETTINGS`` (a config.json without ``numerics`` ran native)."""
+        numerics = values.get("numerics", cls.WRITTEN_BEFORE["numerics"])
+        return (*cls.OUTPUT_SETTINGS, *(cls.PORTABLE_SPEED_SETTINGS if numerics == "portable" else ()))
 
     @staticmethod
     def regulariser_of(values: dict[str, Any]) -> str:

@@ -305,17 +305,19 @@ class RunDir:
         return list(dict.fromkeys(text for setting, text in self._differences(stated) if setting not in after))
 
     def continuation(self, stated: dict[str, Any]) -> RunConfig:
-        """The configuration to continue this run with: the one it was created with, and the output
-        settings ``stated`` gives (``RunConfig.OUTPUT_SETTINGS``: they change no number). Any other
-        setting ``stated`` gives must be the stored one (``setting_differences``), else ResumeError
-        naming each difference with both values."""
+        """The configuration to continue this run with: the one it was created with, and the
+        settings ``stated`` gives that change no number of it (``RunConfig.free_settings``: the
+        output settings, and under the portable arithmetic the speed settings but the device). Any
+        other setting ``stated`` gives must be the stored one (``setting_differences``), else
+        ResumeError naming each difference with both values."""
         differences = self.setting_differences(stated)
         if differences:
             raise ResumeError(f"{self.path} was run with other settings than these: {'; '.join(differences)}: "
                               "continue it with its stored settings (drop those flags or give the stored "
                               "values), or start a new run (another --name, or --overwrite to replace it)")
-        outputs = {name: stated[name] for name in RunConfig.OUTPUT_SETTINGS if name in stated}
-        return replace(self.read_config(), **outputs).validate(machine=False)
+        stored = self.read_config()
+        free = {name: stated[name] for name in RunConfig.free_settings(stored.to_dict()) if name in stated}
+        return replace(stored, **free).validate(machine=False)
 
     def write_summary(self, summary: dict[str, Any]) -> None:
         write_json(self.summary, summary)

@@ -9,6 +9,7 @@ import pytest
 
 from algorithms import REGISTRY
 from lifelong_evo.commands.cli import main
+from lifelong_evo.rundir import RunDir
 from tests.test_nothing_lost import snapshot
 
 COMMON = ["--preset", "smoke", "--schedule", "red:3,green:3,red:2", "--env", "duration=60", "--checkpoint-every", "2",
@@ -197,3 +198,43 @@ def test_a_damaged_source_is_refused_before_the_new_run_is_made(tmp_path, capsys
     err = capsys.readouterr().err
     assert err.startswith("error: ") and err.count("\n") == 1 and names in err
     assert snapshot(tmp_path) == before and not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize("numerics", ["portable", "native"])
+def test_other_speed_settings_take_over_a_first_task_and_resume_only_under_the_portable_arithmetic(
+        tmp_path, capsys, numerics):
+    """Under the portable arithmetic the thread counts and compiled code change no byte
+    (tests/test_same_numbers_anywhere.py): a run under other ones takes over a first task, and a
+    run is resumed under other ones, each giving the numbers it gives alone. Under the native one
+    they round otherwise: both are refused, naming the setting, and nothing is written."""
+    import shutil
+
+    def run(*argv):
+        return main(["--algo", "sep-cmaes", *COMMON, "--numerics", numerics, "--out", str(tmp_path), *argv])
+
+    assert run("--reg", "3", "--name", "source", "--eval-threads", "1", "--no-compile") == 0
+    copy = tmp_path / "copy"
+    shutil.copytree(tmp_path / "source", copy)
+    newest = sorted(copy.glob("checkpoints/generation-*.pt"))[-1]
+    newest.unlink()  # back to the run's middle: --resume plays its last generations again
+    faster = ["--eval-threads", "2", "--compile"]
+    started = ["--reg", "3", "--name", "started", *faster, "--start-from", str(tmp_path / "source")]
+    if numerics == "native":
+        capsys.readouterr()
+        assert run(*started) == 2
+        assert "--eval-threads 2 (stored: 1)" in capsys.readouterr().err and not (tmp_path / "started").exists()
+        before = _files(copy)
+        assert run("--name", "copy", "--resume", *faster) == 2
+        assert "--eval-threads 2 (stored: 1)" in capsys.readouterr().err and _files(copy) == before
+        return
+    assert run(*started) == 0
+    continued = RunDir(copy).continuation({"eval_threads": 2, "compile": True})
+    assert (continued.eval_threads, continued.compile) == (2, True)  # the resumed run computes as told
+    assert run("--name", "copy", "--resume", *faster) == 0
+    source, taken_over, resumed = (_files(tmp_path / name) for name in ("source", "started", "copy"))
+    assert resumed == source  # config.json too: it keeps the settings the run was created with
+    for files in (source, taken_over):
+        config = json.loads(files.pop("config.json"))
+        config.pop("eval_threads"), config.pop("compile")
+        files["config.json"] = config
+    assert taken_over == source
