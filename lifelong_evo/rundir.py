@@ -266,9 +266,12 @@ class RunDir:
                         env={**({} if whole else stored.env), **stated.get("env", {})},
                         algo_options={**keep_options, **stated.get("algo_options", {})}).validate(machine=False)
         differences = []
+        theirs_defined = written.get("task_definitions")
         for name, value in RunConfig.outcome_settings(given.to_dict()).items():
             if name in ("algo_options", "regulariser") and not same_algo:
                 continue
+            if name == "tasks" and theirs_defined is not None:
+                continue  # what the tables define for the schedule is compared below, task by task and field by field; a table the schedule never plays changes no number
             if name in ("env", "algo_options"):
                 flag, mine = ("--env", given.env_config().to_dict()) if name == "env" else \
                     ("--option", given.algo_options_resolved())
@@ -290,11 +293,16 @@ class RunDir:
                 else text) for setting, text in differences]
         # a task's definition can change without a setting changing (a built-in task of another
         # version); a run written before config.json recorded them ran the paper's tasks
-        theirs = written.get("task_definitions")
-        if theirs is not None:
+        if theirs_defined is not None:
             mine = _as_stored(given.task_definitions())
-            differences += [(f"task.{name}", f"task {name}: {mine.get(name)!r} (stored: {theirs.get(name)!r})")
-                            for name in sorted(set(mine) | set(theirs)) if mine.get(name) != theirs.get(name)]
+            for name in sorted(set(mine) | set(theirs_defined)):
+                if name not in theirs_defined or name not in mine:
+                    where = "this schedule's, not the stored one's" if name in mine else "the stored schedule's, not this one's"
+                    differences.append((f"task.{name}", f"task {name}: {where}"))
+                    continue
+                ours, stored_task = mine[name], theirs_defined[name]
+                differences += [(f"task.{name}", f"task {name}: {key} {ours.get(key)!r} (stored: {stored_task.get(key)!r})")
+                                for key in sorted(set(ours) | set(stored_task)) if ours.get(key) != stored_task.get(key)]
         return differences
 
     def first_task_differences(self, stated: dict[str, Any]) -> list[str]:
