@@ -102,6 +102,26 @@ def test_score_a_controller_file_and_fewer_episodes(tmp_path, capsys):
     assert json.loads((tmp_path / "run/summary.json").read_text())["held_out"]["episodes"] == 5
 
 
+def test_score_a_controller_file_on_tasks_a_file_defines(tmp_path, capsys):
+    """``score FILE --tasks``: the loose controller of a run whose schedule plays a task of a task
+    file scores as the run scored it; without the file the task is unknown, in one line."""
+    tasks = tmp_path / "tasks.toml"
+    tasks.write_text('[tasks.red-south]\ntarget = "red"\nseason = ["red", "blue"]\ndrop_zone = "bottom"\n')
+    assert main(["--algo", "neat", "--preset", "smoke", "--tasks", str(tasks), "--schedule", "red:2,red-south:2",
+                 "--out", str(tmp_path), "--name", "run", "--no-record", "--quiet"]) == 0
+    loose = tmp_path / "top.json"
+    shutil.copy(tmp_path / "run/controllers/task1-red-south-top.json", loose)
+    capsys.readouterr()
+    argv = ["score", str(loose), "--schedule", "red:2,red-south:2", "--episodes", "10", "--env", "duration=200"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "red-south" in err and err.count("\n") == 1
+    assert main([*argv, "--tasks", str(tasks)]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    block = json.loads((tmp_path / "run/summary.json").read_text())["held_out"]
+    assert printed["scores"] == block["scores"]["task1-red-south-top"] and set(printed["scores"]) == {"red", "red-south"}
+
+
 @pytest.mark.parametrize("argv, message", [
     (["score", "/no/such/run"], "does not exist"),
     (["score", "RUN", "--episodes", "0"], "--episodes must be >= 1"),

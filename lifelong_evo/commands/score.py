@@ -8,9 +8,9 @@ every task end, so ``score`` brings a run made before held-out scoring existed u
 and on a run that has it writes the same bytes (at the run's own ``--held-out-episodes``).
 Scoring is deterministic: twice gives the same bytes.
 
-A controller file (``.json``) given by itself is scored on the tasks of ``--schedule`` in the arena
-that schedule and ``--env`` give (a file in a run's controllers/ folder: that run's), and its
-scores are printed as JSON; nothing is written.
+A controller file (``.json``) given by itself is scored on the tasks of ``--schedule`` (built-in
+ones, and those a ``--tasks`` file defines) in the arena that schedule and ``--env`` give (a file
+in a run's controllers/ folder: that run's), and its scores are printed as JSON; nothing is written.
 
 Every path is checked before anything is scored or written; a run directory is locked while its
 summary is rewritten, so a running run is refused.
@@ -25,7 +25,7 @@ from typing import Any
 from algorithms import policy_from_export
 from envs import ConfigError, numerics
 
-from ..config import RunConfig, resolve
+from ..config import RunConfig, load_tasks, resolve
 from ..errors import RunDirError, UserError
 from ..held_out import score_controllers
 from ..json_files import read_json
@@ -52,6 +52,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="for a controller file outside a run: the tasks to score on (default: red-green-red)")
     parser.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
                         help="for a controller file outside a run: an environment option (repeatable)")
+    parser.add_argument("--tasks", dest="tasks_file", default=None, metavar="FILE",
+                        help="for a controller file outside a run: a TOML file of [tasks.NAME] tables whose names "
+                             "--schedule can use (docs/usage.md, Tasks)")
 
 
 def _episodes(text: str | None) -> int | None:
@@ -66,11 +69,13 @@ def _episodes(text: str | None) -> int | None:
 def _file_config(path: Path, args: argparse.Namespace) -> RunConfig:
     """The configuration a loose controller file is scored in: its run's, else the flags'."""
     run = RunDir(path.parent.parent)
-    if path.parent.name == "controllers" and run.config.is_file() and not (args.schedule or args.env):
+    if path.parent.name == "controllers" and run.config.is_file() and not (args.schedule or args.env or args.tasks_file):
         return run.read_config()
     overrides: dict[str, Any] = {"env": parse_assignments(args.env, "--env")} if args.env else {}
     if args.schedule:
         overrides["schedule"] = args.schedule
+    if args.tasks_file:
+        overrides["tasks"] = load_tasks(args.tasks_file)
     return resolve("paper", None, overrides, machine=False)
 
 
