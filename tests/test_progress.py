@@ -87,3 +87,24 @@ def test_a_run_writing_to_files_shows_where_it_writes_and_that_it_is_alive(tmp_p
     progress = [line for line in err.read_text().splitlines() if line.startswith("task ")]
     assert "\r" not in err.read_text()
     assert [line.split("gen ")[1].split()[0] for line in progress] == ["1/6", "2/6", "4/6", "6/6"]
+
+
+def test_the_run_end_table_keeps_its_columns_under_a_long_task_name():
+    """The table a run prints at its end: a task name longer than the column's header widens the
+    column, so every figure ends where its header ends."""
+    from lifelong_evo.analysis.report import summary_table
+
+    summary = {"phases": ["red", "red-nest-bottom", "red"], "current": [1.0, 22.5, 3.0], "current_top": [1.0, 2.0, 3.0],
+               "forgetting": [{"at_end_of": 1, "task": "red", "R_pop": 1.5, "F_pop": -0.5, "R_top": 0.0, "F_top": 1.0},
+                              {"at_end_of": 2, "task": "red-nest-bottom", "R_pop": 10.5, "F_pop": 12.0, "R_top": 0.0,
+                               "F_top": -0.5}],
+               "ACC_pop": 1.0, "BWT_pop": -10.25, "FWT_pop": 0.0, "ACC_top": 1.0, "BWT_top": 0.0, "FWT_top": 0.0,
+               "wall_time_s": 1.0}
+    blocks = [block.splitlines() for block in summary_table(summary).split("\n\n")[:3]]
+    for header, *rows in blocks:
+        for title in header.split("  "):
+            title = title.strip()
+            if title and title not in ("task", "phase", "at end of"):  # figures, right-aligned under their title
+                end = header.index(title) + len(title)
+                assert all(row[end - 1] != " " and (len(row) == end or row[end] == " ") for row in rows), (title, rows)
+    assert blocks[0][2].split()[:3] == ["1", "red-nest-bottom", "22.50"]

@@ -19,27 +19,33 @@ def duration(seconds: float) -> str:
     return f"{seconds / 3600:.1f} h"
 
 
+def aligned(header: list[str], rows: list[list[str]], left: tuple[int, ...] = ()) -> list[str]:
+    """``header`` and ``rows`` as lines of columns as wide as their widest cell (a long task name
+    widens its column), two spaces apart: the columns ``left`` names (text) aligned left, the
+    others (numbers) right."""
+    widths = [max(len(cell) for cell in column) for column in zip(header, *rows)]
+    return ["  ".join(cell.ljust(width) if i in left else cell.rjust(width)
+                      for i, (cell, width) in enumerate(zip(line, widths))).rstrip() for line in [header, *rows]]
+
+
 def summary_table(summary: dict[str, Any]) -> str:
     """The paper's table for one run: current performance per phase (the population's best and
     the top individual's: they differ when a regulariser ranks the population), then retention and
     forgetting of each earlier task at each later task end, then the transfer metrics."""
     keys = SummaryLayout
-    lines = ["phase  task     C (current)   top individual"]
     tops = summary.get(keys.CURRENT_TOP) or [None] * len(summary[keys.CURRENT])
-    for i, (name, c, top) in enumerate(zip(summary[keys.PHASES], summary[keys.CURRENT], tops)):
-        lines.append(f"{i:>5}  {name:<7}  {_fmt(c):>11}   {_fmt(top):>14}")
+    lines = aligned(["phase", "task", "C (current)", "top individual"],
+                    [[str(i), name, _fmt(c), _fmt(top)]
+                     for i, (name, c, top) in enumerate(zip(summary[keys.PHASES], summary[keys.CURRENT], tops))], left=(1,))
     if summary[keys.FORGETTING]:
         lines.append("")
-        lines.append("at end of  task     R_pop   F_pop   R_top   F_top")
-        for row in summary[keys.FORGETTING]:
-            lines.append(f"{row['at_end_of']:>9}  {row['task']:<7}  {_fmt(row['R_pop']):>6}  {_fmt(row['F_pop']):>6}  "
-                         f"{_fmt(row['R_top']):>6}  {_fmt(row['F_top']):>6}")
+        lines += aligned(["at end of", "task", "R_pop", "F_pop", "R_top", "F_top"],
+                         [[str(row["at_end_of"]), row["task"], *(_fmt(row[m]) for m in ("R_pop", "F_pop", "R_top", "F_top"))]
+                          for row in summary[keys.FORGETTING]], left=(1,))
     if keys.transfer("ACC", "pop") in summary:
         lines.append("")
-        lines.append("         ACC     BWT     FWT")
-        for level in ("pop", "top"):
-            lines.append("  ".join([f"{level:<5}", *(f"{_fmt(summary[keys.transfer(m, level)]):>6}"
-                                                     for m in keys.TRANSFER)]))
+        lines += aligned(["", *keys.TRANSFER], [[level, *(_fmt(summary[keys.transfer(m, level)]) for m in keys.TRANSFER)]
+                                               for level in ("pop", "top")], left=(0,))
     lines.append(f"\nwall time: {duration(summary[keys.WALL_TIME])}")
     machines = summary.get(keys.MACHINES, [])
     for where in machines:
