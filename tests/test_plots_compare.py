@@ -223,6 +223,27 @@ def test_the_retention_figure_draws_every_task_kept_while_another_is_current(swe
         assert len(set(styles)) == 3
 
 
+def test_the_retention_figure_tells_every_task_of_a_long_schedule_apart(tmp_path, monkeypatch):
+    """Past four tasks the line styles come round again, each time with a marker of their own: no
+    two tasks' retention looks alike, in the legend or on the curves."""
+    schedule = "red:2,green:2,purple:2,cyan:2,red-nest-bottom:2,red-two-failed:2"
+    assert cli_main(["--algo", "neat", "--preset", "smoke", "--schedule", schedule, "--env", "duration=20",
+                     "--out", str(tmp_path / "runs"), "--name", "long", "--no-record", "--quiet"]) == 0
+    figures = {}
+    monkeypatch.setattr(plots, "save", lambda fig, path: figures.setdefault(path.name, fig) and path)
+    plots.overlay_figures([tmp_path / "runs"], tmp_path)
+    for ax in figures["comparison-retention.png"].axes:
+        legend = {t.get_text(): line for t, line in zip(ax.get_legend().get_texts(), ax.get_legend().get_lines())}
+        tasks = [name for name in legend if name.startswith("retention of ")]
+        assert len(tasks) == 6
+        looks = {(legend[name].get_linestyle(), legend[name].get_marker()) for name in tasks}
+        assert len(looks) == 6
+        (labelled,) = [line for line in ax.get_lines() if "(n=1)" in line.get_label()]
+        curves = [(line.get_linestyle(), line.get_marker()) for line in ax.get_lines()
+                  if line.get_color() == labelled.get_color()]
+        assert len(curves) == len(set(curves)) == 5  # every task but the last is kept while another is current
+
+
 def test_the_papers_table_has_a_line_per_configuration(sweep):
     """One line per configuration in the paper's shape, each cell the estimate of its metric
     over the seeds: per deployed controller (held-out, as these runs have the block) red learnt,

@@ -38,7 +38,6 @@ before the first figure is drawn: a bad one is a one-line error with nothing wri
 """
 from __future__ import annotations
 
-import itertools
 import os
 import re
 import textwrap
@@ -455,9 +454,21 @@ def _overlay(ax, groups: list[list[Run]], configs: list[dict[str, Any]], series)
     return drawn
 
 
-RETENTION_STYLES = ("-", ":", "-.", (0, (5, 1, 1, 1, 1, 1)))
-"""Line style of each task's retention, in the schedule's order of first appearance (none of them
-the drift lines' dashes, so that a legend entry names one kind of line)."""
+RETENTION_LOOKS = tuple((style, marker) for marker in _RANK_MARKERS
+                        for style in ("-", ":", "-.", (0, (5, 1, 1, 1, 1, 1))))
+"""The look (line style, marker) of each task's retention in ``compare``'s figure, in the
+schedule's order of first appearance: four line styles (none of them the drift lines' dashes, so
+that a legend entry names one kind of line), each later four again with a marker of their own; no
+two alike. ``compare`` refuses a schedule with more tasks than there are looks."""
+
+
+def _retention_look(task_rank: int, points: int) -> tuple[Any, str | None, int | None]:
+    """Line style, marker and marker spacing of the retention of a schedule's ``task_rank``-th task
+    over ``points`` generations: a measured point's dot on a short curve, a task's marker spaced."""
+    style, marker = RETENTION_LOOKS[task_rank]
+    if marker is None:
+        return style, "o" if points < 40 else None, None
+    return style, marker, max(1, points // 12)
 
 
 def _overlay_retention(ax, groups: list[list[Run]], configs: list[dict[str, Any]], level: str) -> bool:
@@ -469,15 +480,16 @@ def _overlay_retention(ax, groups: list[list[Run]], configs: list[dict[str, Any]
     for k, group in enumerate(groups):
         found = retention_by_task(group, level)
         label = _legend(group, configs)
-        for task, style in zip(tasks, itertools.cycle(RETENTION_STYLES)):
+        for rank, task in enumerate(tasks):
             if task in found:
                 generations, values = found[task]
+                style, marker, spacing = _retention_look(rank, len(generations))
                 band(ax, generations, values, CONFIG_COLORS[k % len(CONFIG_COLORS)], style, label,
-                     marker="o" if len(generations) < 40 else None)
+                     marker=marker, markevery=spacing)
                 label, drawn = None, True
     if drawn:
-        for task, style in zip(tasks, itertools.cycle(RETENTION_STYLES)):
-            ax.plot([], [], color="0.3", linestyle=style, label=f"retention of {task}")
+        for task, (style, marker) in zip(tasks, RETENTION_LOOKS):
+            ax.plot([], [], color="0.3", linestyle=style, marker=marker, label=f"retention of {task}")
     _finish(ax, groups)
     return drawn
 
@@ -525,6 +537,12 @@ def overlay_figures(paths, out: Path) -> list[Path]:
         phases = schedule_of(config)
         by_schedule.setdefault(repr([(p.name, p.generations) for p in phases]), []).append(group)
     configs = [g[0].config for groups in by_schedule.values() for g in groups]
+    for groups in by_schedule.values():  # before anything is drawn
+        tasks = list(dict.fromkeys(groups[0][0].tasks))
+        if len(tasks) > len(RETENTION_LOOKS):
+            raise UserError(f"the schedule {groups[0][0].config.get('schedule')} has {len(tasks)} tasks, and the "
+                            f"retention figure tells at most {len(RETENTION_LOOKS)} apart: compare runs of a "
+                            "shorter schedule, or read their metrics.csv (docs/metrics.md)")
     written = []
     for index, groups in enumerate(by_schedule.values()):
         schedule = str(groups[0][0].config.get("schedule", ""))
