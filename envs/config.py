@@ -125,6 +125,10 @@ class Task:
         if not self.name:
             object.__setattr__(self, "name", COLOR_NAMES.get(self.target, f"colour{self.target}"))
         where = f"task {self.name!r}"
+        if self.target not in self.season:  # no box could ever be the target
+            target = _colour_name(self.target)
+            raise ConfigError(f"{where}: target {target} is not in its season "
+                              f"[{', '.join(map(_colour_name, self.season))}]: add {target} to the season")
         if isinstance(self.rewards, Mapping):
             valid = [f.name for f in fields(Rewards)]
             unknown = sorted(set(self.rewards) - set(valid))
@@ -292,10 +296,6 @@ class ForagingConfig:
                     raise ConfigError(
                         f"task {task.name!r} uses colour id {color}, which this arena does not know "
                         f"(colors={list(self.colors)}): add it to colors")
-        if task.target not in task.season:
-            target = _colour_name(task.target)
-            raise ConfigError(f"task {task.name!r}: target {target} is not in its season "
-                              f"[{', '.join(map(_colour_name, task.season))}]: add {target} to the season")
         n_target = int(self.n_boxes * self.rate_target)
         if n_target < self.n_boxes and len(set(task.season) - {task.target}) == 0:
             raise ConfigError(

@@ -91,12 +91,10 @@ def test_too_many_boxes_for_the_arena():
 
 
 def test_task_target_outside_its_season():
-    bad = Task(3, (4, 5))
-    with pytest.raises(ConfigError, match="season"):
-        ForagingConfig().check_task(bad)
-    env = ForagingEnv(ForagingConfig(), 2)
-    with pytest.raises(ConfigError, match="season"):
-        env.reset(tasks=bad, generator=0)
+    """A task whose target no box can have is refused where it is made, whatever arena it would
+    run in: in Python as from a task file."""
+    with pytest.raises(ConfigError, match=r"task 'red': target red is not in its season \[blue, green\]"):
+        Task(3, (4, 5))
 
 
 def test_task_color_unknown_to_the_arena():
