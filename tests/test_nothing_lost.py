@@ -182,6 +182,12 @@ def test_a_sweep_does_not_write_into_a_folder_of_someone_elses(work, capsys):
     assert main(["sweep", "--together", *SIZE, "--name", "ours"]) == 0
     assert main(["sweep", "--together", *SIZE, "--name", "ours"]) == 0
     assert "skipped" in capsys.readouterr().out
+    # its sweep.json damaged: named as such, not as someone else's folder, and nothing touched
+    (work / "runs" / "ours" / "sweep.json").write_bytes(b'{"name": "ours", "gr')
+    before = snapshot(work.parent)
+    said = refused(["sweep", "--together", *SIZE, "--name", "ours"], capsys)
+    assert "sweep.json is damaged (not UTF-8 JSON)" in said and "restore the file from a copy" in said, said
+    assert snapshot(work.parent) == before
 
 
 @pytest.mark.parametrize("verb", ["--together", "--dry-run"])

@@ -286,10 +286,16 @@ def check_sweep_folder(sweep_dir: Path) -> None:
     if outer is not None:
         raise RunDirError(f"--out {sweep_dir.parent} is inside run directory {outer}, whose --overwrite would "
                           "delete the sweep too: choose another --out")
+    sweep_file = sweep_dir / SWEEP_FILE
     try:
-        if {"name", "grid", "trials"} <= set(read_json(sweep_dir / SWEEP_FILE)):
+        if {"name", "grid", "trials"} <= set(read_json(sweep_file)):
             return
-    except (RunDirError, TypeError):  # missing, unreadable, or JSON of another shape
+    except RunDirError:  # missing, or not JSON at all
+        if sweep_file.is_file():
+            raise RunDirError(f"{sweep_file} is damaged (not UTF-8 JSON), so this folder cannot be told to be a "
+                              "sweep's: restore the file from a copy of the sweep's folder, or choose another --name "
+                              "or --out") from None
+    except TypeError:  # JSON of another shape
         pass
     try:
         clashing = sorted({p.name for pattern in SWEEP_FILES for p in sweep_dir.glob(pattern)})
