@@ -271,7 +271,8 @@ class RunDir:
             if name in ("algo_options", "regulariser") and not same_algo:
                 continue
             if name == "tasks" and theirs_defined is not None:
-                continue  # what the tables define for the schedule is compared below, task by task and field by field; a table the schedule never plays changes no number
+                # compared below, task by task and field by field: a table the schedule never plays changes no number
+                continue
             if name in ("env", "algo_options"):
                 flag, mine = ("--env", given.env_config().to_dict()) if name == "env" else \
                     ("--option", given.algo_options_resolved())
@@ -297,12 +298,13 @@ class RunDir:
             mine = _as_stored(given.task_definitions())
             for name in sorted(set(mine) | set(theirs_defined)):
                 if name not in theirs_defined or name not in mine:
-                    where = "this schedule's, not the stored one's" if name in mine else "the stored schedule's, not this one's"
+                    where = "this schedule's, not the stored one's" if name in mine else \
+                        "the stored schedule's, not this one's"
                     differences.append((f"task.{name}", f"task {name}: {where}"))
                     continue
-                ours, stored_task = mine[name], theirs_defined[name]
-                differences += [(f"task.{name}", f"task {name}: {key} {ours.get(key)!r} (stored: {stored_task.get(key)!r})")
-                                for key in sorted(set(ours) | set(stored_task)) if ours.get(key) != stored_task.get(key)]
+                ours, kept = mine[name], theirs_defined[name]
+                differences += [(f"task.{name}", f"task {name}: {key} {ours.get(key)!r} (stored: {kept.get(key)!r})")
+                                for key in sorted(set(ours) | set(kept)) if ours.get(key) != kept.get(key)]
         return differences
 
     def first_task_differences(self, stated: dict[str, Any]) -> list[str]:
