@@ -246,6 +246,24 @@ def test_a_returning_task_gets_its_own_archived_controller(adopted, algo):
             assert played[-1]["parameters"] == exported["parameters"]  # the centre
 
 
+def test_a_blend_into_a_returning_task_is_its_returning_phase(tmp_path, monkeypatch):
+    """green>red after green: red counts from the blend's first generation, so its archived
+    controller goes back there (where the fitness is still mostly green's), and the red phase the
+    blend goes on into gets nothing."""
+    adopted = []
+    original = NeatOptimizer.adopt
+
+    def spy(self, exported):
+        adopted.append((self.generation, exported))
+        original(self, exported)
+
+    monkeypatch.setattr(NeatOptimizer, "adopt", spy)
+    assert main(["--algo", "neat", *COMMON, "--schedule", "red:1,green:1,green>red:2,red:1", "--archive",
+                 "--out", str(tmp_path), "--name", "blend"]) == 0
+    red = json.loads((tmp_path / "blend/controllers/task0-red-top.json").read_text())
+    assert adopted == [(2, red)]
+
+
 def test_the_held_out_block_scores_the_archive(adopted):
     """summary.json's held-out block: each task's archived controller (its top one at its latest
     end) with its held-out score on that task, and their mean."""
