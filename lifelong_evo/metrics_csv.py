@@ -172,10 +172,9 @@ def check_continuable(folder: Path, layout: MetricsLayout, generations: int, fir
         with open(path, newline="") as handle:
             header = next(csv.reader(handle), [])
         if header != columns:
-            differences = [f"it lacks {', '.join(c for c in columns if c not in header)}" if set(columns) - set(header)
-                           else "", f"it has {', '.join(c for c in header if c not in columns)}"
-                           if set(header) - set(columns) else ""]
-            said = "; ".join(d for d in differences if d) or "its columns are in another order"
+            lacks, extra = [c for c in columns if c not in header], [c for c in header if c not in columns]
+            said = "; ".join([*([f"it lacks {', '.join(lacks)}"] if lacks else []),
+                              *([f"it has {', '.join(extra)}"] if extra else [])]) or "its columns are in another order"
             raise RunDirError(f"{path}'s header is not the one this run writes ({said}): restore it from a copy "
                               f"of the run, or {again}")
         missing = [g for g in range(generations) if g not in held]
@@ -186,8 +185,8 @@ def check_continuable(folder: Path, layout: MetricsLayout, generations: int, fir
         if not generations and held and max(held) >= first_checkpoint:
             raise RunDirError(f"{folder} has no checkpoint, though its {path.name} holds rows up to generation "
                               f"{max(held)} and the run wrote one after generation {first_checkpoint - 1}: restore "
-                              f"checkpoints/ from a copy of the run, or delete {' and '.join(layout.files)} for --resume to start "
-                              "it again from generation 0")
+                              f"checkpoints/ from a copy of the run, or delete {' and '.join(layout.files)} for "
+                              "--resume to start it again from generation 0")
 
 
 def logged_generations(path: Path) -> set[int]:
