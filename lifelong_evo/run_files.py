@@ -19,7 +19,8 @@ one ``error:`` line), never as an exception halfway through its work. Nothing he
 - ``check_summary``: summary.json is an object whose ``phases`` are the first tasks of
   config.json's schedule, in order (``metrics.summarise`` writes one per ended phase), and whose
   figures, where present, are numbers (or null) where the readers expect them: the per-phase
-  lists, forgetting rows, R matrices, transfer metrics, stability gaps and the held-out block.
+  lists, forgetting rows, R matrices, transfer metrics, stability gaps and the held-out block
+  (with a skill archive's: each archived controller, one the block scores, and its score).
 - ``check_metrics``: each metrics.csv row's ``task_index`` lies within the schedule, its ``task``
   is the schedule's task at that index, and generations strictly increase (each written once).
 - ``check_controller``: an exported controller as ``algorithms.check_export`` sees it, taking the
@@ -248,6 +249,30 @@ def _check_held_out(held: Any, where: str, schedule: list[str]) -> None:
         for task, value in by_task.items():
             _figure(value, f"{where}, key 'scores', {name!r}, {task!r}")
     _check_figures(held, where, schedule)
+    _check_archive(held, where, phases, scores)
+
+
+def _check_archive(held: dict[str, Any], where: str, phases: list[str], scores: dict[str, Any]) -> None:
+    """The held-out block's skill archive, where the run kept one (``metrics.held_out_summary``): an
+    object with, per task of the block's phases, the controller it archived (one the block scores)
+    and that controller's score on the task; and the mean of those scores."""
+    key = SummaryLayout.ARCHIVE
+    if key in held:
+        archive, at = held[key], f"{where}, key {key!r}"
+        if not isinstance(archive, dict):
+            raise RunDirError(f"{at}: {_shown(archive)} is {_kind(archive)}, not an object of each task's archived "
+                              f"controller: {RESTORE}")
+        for task, kept in archive.items():
+            if task not in phases:
+                raise RunDirError(f"{at}: {task!r} is not a task of the block's phases {phases}: {RESTORE}")
+            if not isinstance(kept, dict) or not isinstance(kept.get("controller"), str) or kept["controller"] not in scores:
+                raise RunDirError(f"{at}, {task!r}: {_shown(kept)} is not an object naming a controller the block "
+                                  f"scores ('controller') and its score ('score'): {RESTORE}")
+            if not _is_number(kept.get("score")):
+                raise RunDirError(f"{at}, {task!r}, 'score': {_shown(kept.get('score'))} is {_kind(kept.get('score'))}, "
+                                  f"not a number: {RESTORE}")
+    if SummaryLayout.ARCHIVE_MEAN in held:
+        _figure(held[SummaryLayout.ARCHIVE_MEAN], f"{where}, key {SummaryLayout.ARCHIVE_MEAN!r}")
 
 
 def _list(value: Any, where: str) -> list:

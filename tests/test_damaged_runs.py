@@ -180,7 +180,8 @@ CASES = [
     ("ES controller parameter infinite", "es", edit_json(FINAL, lambda c: c["parameters"].__setitem__(3, float("inf"))),
      ["replay"]),
     # the runs with the newer features: config.json's keys written beside the settings were read
-    # unchecked (a traceback in --resume, --start-from and compare, or a damage read as it stood)
+    # unchecked (a traceback in --resume, --start-from and compare, or a damage read as it stood),
+    # and summary.json's archive was never checked
     ("config.json task_definitions a task's not an object", "wp",
      edit_json("config.json", lambda c: c["task_definitions"].update({"red-south": "x"})),
      ["--resume", "--start-from", "plot", "replay", "score"]),
@@ -192,6 +193,17 @@ CASES = [
      ["compare", "--resume"]),
     ("config.json algo_options_resolved another family's option", "sep",
      option("algo_options_resolved", "lambda_2", 0.5), ["plot"]),
+    ("summary.json archive a string", "sep", edit_json("summary.json", lambda s: s["held_out"].update(archive="x")),
+     ["plot", "compare", "score"]),
+    ("summary.json archive of a task not played", "wp",
+     edit_json("summary.json", lambda s: s["held_out"]["archive"].update(blue={"controller": "task0-red-top", "score": 1})),
+     ["compare"]),
+    ("summary.json archive controller a list", "wp",
+     edit_json("summary.json", lambda s: s["held_out"]["archive"]["red"].update(controller=[])), ["plot"]),
+    ("summary.json archive score a string", "sep",
+     edit_json("summary.json", lambda s: s["held_out"]["archive"]["red"].update(score="x")), ["compare"]),
+    ("summary.json archive_mean a list", "wp", edit_json("summary.json", lambda s: s["held_out"].update(archive_mean=[])),
+     ["score"]),
 ]
 REFUSALS = [pytest.param(kind, damage, verb, id=f"{name}-{verb}") for name, kind, damage, verbs in CASES
             for verb in verbs]
@@ -289,7 +301,7 @@ def damages(draw):
     """(a description, a damage) to one file of a run."""
     name = draw(st.sampled_from(FILES))
     how = draw(st.sampled_from(["truncate", "wrong value", "out of range", "unknown task", "duplicate row",
-                                "controller shape", "task field"]))
+                                "controller shape", "held-out block", "task field"]))
     if how == "truncate":
         keep = draw(st.floats(0, 0.99))
         return f"{name} cut to {keep:.2f}", truncate(name, keep)
@@ -307,6 +319,13 @@ def damages(draw):
         if how == "controller shape" and key in ("nodes", "connections"):
             return f"{name} genome.{key}={value!r}", edit_json(name, lambda c: c.get("genome", {}).update({key: value}))
         return f"{name} {key}={value!r}", edit_json(name, lambda c: c.update({key: value}))
+    if how == "held-out block" and name == "summary.json":
+        key = draw(st.sampled_from(["archive", "archive_mean", "scores", "phases", "episodes", "current_top", "R_top",
+                                    "forgetting"]))
+        value = draw(st.one_of(WRONG_VALUES, st.just({"red": {"controller": "task0-red-top", "score": "x"}}),
+                               st.just({"blue": {"controller": "task0-red-top", "score": 1.0}})))
+        return (f"summary.json held_out.{key}={value!r}",
+                edit_json(name, lambda s: s.update(held_out={**(s.get("held_out") or {}), key: value})))
     if how == "task field" and name == "config.json":
         table = draw(st.sampled_from(["tasks", "task_definitions"]))
         key = draw(st.sampled_from(["target", "season", "drop_zone", "rewards", "failed_robots", "motor_gain", "colour"]))
