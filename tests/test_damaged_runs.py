@@ -23,6 +23,7 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
+from lifelong_evo import checkpoint
 from lifelong_evo.commands import view
 from lifelong_evo.commands.cli import main
 from lifelong_evo.commands.sweep import trial_state
@@ -251,6 +252,22 @@ def test_a_sweep_does_not_resume_a_trial_whose_config_json_is_damaged(kind, dama
     damage(run)
     state, why = trial_state(run, config)
     assert state == "failed" and f"key {key!r}" in why and named in why, (state, why)
+
+
+@pytest.mark.parametrize("archive", ["x", {"red": "x"}, {"red": {"genome": 5}}, {"blue": {}}])
+def test_resume_refuses_a_checkpoint_whose_archive_is_damaged(archive, work, capsys):
+    """A checkpoint's skill archive is put back into the population when its task returns: one
+    that is no object of the run's controllers by task (its checksum made to match) is refused in
+    one line naming the checkpoint, not a traceback when the task returns."""
+    run = work / "runs" / "wp"
+    newest, *_ = sorted((run / "checkpoints").glob("generation-*.pt"), reverse=True)
+    newest.unlink()  # the run ends its second task at the checkpoint before: red returns
+    path = sorted((run / "checkpoints").glob("generation-*.pt"))[-1]
+    payload = checkpoint.load(path)
+    payload["loop"]["archive"] = archive
+    checkpoint.save(path, payload)
+    err = assert_refused(command("wp", "--resume", work), work, capsys)
+    assert str(path) in err and "archive" in err, err
 
 
 def test_the_undamaged_runs_pass_every_verb(work, capsys):
