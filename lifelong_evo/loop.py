@@ -38,7 +38,7 @@ from typing import Any, Callable, Generator, Iterator, Sequence
 
 import torch
 
-from algorithms import make_optimizer, policy_from_export
+from algorithms import ExportError, check_export, make_optimizer, policy_from_export
 from algorithms.base import FUNCTIONAL
 from envs import numerics
 
@@ -565,9 +565,30 @@ def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator, layout: Me
         raise checkpoint.older_version_error(path)
     if RunConfig.outcome_settings(payload.get("config") or {}) != RunConfig.outcome_settings(config.to_dict()):
         raise ResumeError(f"checkpoint {path} belongs to another configuration: delete it or start a new run")
+    problem = _archive_problem((payload.get("loop") or {}).get("archive", {}), config)
+    if problem:
+        raise checkpoint.CorruptCheckpointError(f"checkpoint {path} is damaged ({problem}); "
+                                                f"{_damaged_checkpoint_advice(found, layout)}")
     state = _load_state(payload, optimizer, generator)
     check_continuable(run_dir.path, layout, state.generation, first_checkpoint)
     return state
+
+
+def _archive_problem(archive: Any, config: RunConfig) -> str | None:
+    """What is wrong with a checkpoint's skill archive (its loop's ``archive``: each task of the
+    schedule by name, with the top controller kept at its end, as exported), or None: the run puts
+    an archived controller back into its population when its task returns."""
+    if not isinstance(archive, dict):
+        return f"its archive is a {type(archive).__name__}, not an object of controllers by task"
+    tasks = {task.name for task in distinct_tasks(config.phases())}
+    for name, exported in archive.items():
+        if name not in tasks:
+            return f"its archive holds a controller for {name!r}, no task of the schedule"
+        try:
+            check_export(exported, config.env_config().obs_dim)
+        except ExportError as error:
+            return f"its archived controller for {name!r} is no controller of this run: {error}"
+    return None
 
 
 def _damaged_checkpoint_advice(found: list[Path], layout: MetricsLayout) -> str:

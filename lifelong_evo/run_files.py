@@ -13,11 +13,14 @@ one ``error:`` line), never as an exception halfway through its work. Nothing he
   ``algo_options`` objects whose every option is one of the environment's or the optimiser's,
   likewise of its declared type and within its bounds, a regulariser its optimiser applies, a
   schedule that parses (its canonical spelling is the configuration's) and an arena the
-  environment accepts.
+  environment accepts; and, where written, the keys written beside the settings that are read:
+  ``env_resolved`` and ``algo_options_resolved`` (objects of options, as ``env`` and
+  ``algo_options``) and ``task_definitions`` (a definition of each task of the schedule).
 - ``check_summary``: summary.json is an object whose ``phases`` are the first tasks of
   config.json's schedule, in order (``metrics.summarise`` writes one per ended phase), and whose
   figures, where present, are numbers (or null) where the readers expect them: the per-phase
-  lists, forgetting rows, R matrices, transfer metrics, stability gaps and the held-out block.
+  lists, forgetting rows, R matrices, transfer metrics, stability gaps and the held-out block
+  (with a skill archive's: each archived controller, one the block scores, and its score).
 - ``check_metrics``: each metrics.csv row's ``task_index`` lies within the schedule, its ``task``
   is the schedule's task at that index, and generations strictly increase (each written once).
 - ``check_controller``: an exported controller as ``algorithms.check_export`` sees it, taking the
@@ -41,6 +44,7 @@ from .errors import RESTORE, RunDirError
 from .options import LISTED_BY, parse_table, parse_value, schema
 from .schedule import ScheduleError, canonical_schedule
 from .summary_json import SummaryLayout
+from .tasks import task_from_table
 
 TABLES = ("env", "algo_options", "tasks")
 """config.json's settings that are objects of options (every other one is a single value)."""
@@ -120,7 +124,53 @@ def check_config(values: Any, path: Path, written_beside: Iterable[str] = ()) ->
         config.env_config()
     except (ConfigError, TypeError, ValueError) as error:  # an option ForagingConfig does not have or take
         raise RunDirError(f"{path}, key 'env': {error}: {RESTORE}") from None
+    _check_resolved(values, path, algo, optimizer, set(written_beside))
+    _check_task_definitions(values, path, config, set(written_beside))
     return config
+
+
+def _check_resolved(values: dict[str, Any], path: Path, algo: str, optimizer: Any,
+                    written_beside: set[str]) -> None:
+    """config.json's resolved environment and optimiser options (``env_resolved``,
+    ``algo_options_resolved``), where written: objects whose every option is one of the
+    environment's or the optimiser's, of its type and within its bounds, as ``env`` and
+    ``algo_options`` are (``--resume`` compares them and ``compare`` reads them in their place). A
+    config.json written before one existed has none; an option added since is at its default."""
+    for key, cls, owner, listed_by in (
+            ("env_resolved", ForagingConfig, "environment", LISTED_BY),
+            ("algo_options_resolved", getattr(optimizer, "Options", None), algo, f"{LISTED_BY} --algo {algo}")):
+        if key not in values or key not in written_beside or cls is None:  # cls: an optimiser this process does not know
+            continue
+        value = values[key]
+        if not isinstance(value, dict):
+            raise RunDirError(f"{path}, key {key!r}: {_shown(value)} is {_kind(value)}, not an object of options: "
+                              f"{RESTORE}")
+        try:
+            parse_table(cls, value, owner, "option", listed_by, text=False)
+        except ConfigError as error:
+            raise RunDirError(f"{path}, key {key!r}: {error}: {RESTORE}") from None
+
+
+def _check_task_definitions(values: dict[str, Any], path: Path, config: RunConfig, written_beside: set[str]) -> None:
+    """config.json's ``task_definitions``, where written (a run made before it existed has none):
+    an object with the full definition of each task of the schedule, and of no other (``--resume``
+    and ``--start-from`` compare them field by field)."""
+    key = "task_definitions"
+    if key not in values or key not in written_beside:
+        return
+    defined, where = values[key], f"{path}, key {key!r}"
+    if not isinstance(defined, dict):
+        raise RunDirError(f"{where}: {_shown(defined)} is {_kind(defined)}, not an object of task definitions: "
+                          f"{RESTORE}")
+    scheduled = list(config.task_definitions())
+    if set(defined) != set(scheduled):
+        raise RunDirError(f"{where}: defines {_shown(sorted(defined))}, where config.json's schedule "
+                          f"{config.schedule!r} plays {_shown(scheduled)}: {RESTORE}")
+    for name, definition in defined.items():
+        try:
+            task_from_table(name, definition)
+        except ConfigError as error:
+            raise RunDirError(f"{where}: {error}: {RESTORE}") from None
 
 
 def check_summary(values: Any, path: Path, config: RunConfig) -> dict[str, Any]:
@@ -199,6 +249,30 @@ def _check_held_out(held: Any, where: str, schedule: list[str]) -> None:
         for task, value in by_task.items():
             _figure(value, f"{where}, key 'scores', {name!r}, {task!r}")
     _check_figures(held, where, schedule)
+    _check_archive(held, where, phases, scores)
+
+
+def _check_archive(held: dict[str, Any], where: str, phases: list[str], scores: dict[str, Any]) -> None:
+    """The held-out block's skill archive, where the run kept one (``metrics.held_out_summary``): an
+    object with, per task of the block's phases, the controller it archived (one the block scores)
+    and that controller's score on the task; and the mean of those scores."""
+    key = SummaryLayout.ARCHIVE
+    if key in held:
+        archive, at = held[key], f"{where}, key {key!r}"
+        if not isinstance(archive, dict):
+            raise RunDirError(f"{at}: {_shown(archive)} is {_kind(archive)}, not an object of each task's archived "
+                              f"controller: {RESTORE}")
+        for task, kept in archive.items():
+            if task not in phases:
+                raise RunDirError(f"{at}: {task!r} is not a task of the block's phases {phases}: {RESTORE}")
+            if not isinstance(kept, dict) or not isinstance(kept.get("controller"), str) or kept["controller"] not in scores:
+                raise RunDirError(f"{at}, {task!r}: {_shown(kept)} is not an object naming a controller the block "
+                                  f"scores ('controller') and its score ('score'): {RESTORE}")
+            if not _is_number(kept.get("score")):
+                raise RunDirError(f"{at}, {task!r}, 'score': {_shown(kept.get('score'))} is {_kind(kept.get('score'))}, "
+                                  f"not a number: {RESTORE}")
+    if SummaryLayout.ARCHIVE_MEAN in held:
+        _figure(held[SummaryLayout.ARCHIVE_MEAN], f"{where}, key {SummaryLayout.ARCHIVE_MEAN!r}")
 
 
 def _list(value: Any, where: str) -> list:

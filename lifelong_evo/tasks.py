@@ -50,6 +50,13 @@ def define_task(name: str, table: Any) -> Task:
                                                         "in _ for -, which run and file names do not tell apart,")
         raise ConfigError(f"task {name!r} {same} and cannot be defined again: give your task another name, "
                           f"e.g. {name}-2")
+    return task_from_table(name, table)
+
+
+def task_from_table(name: str, table: Any) -> Task:
+    """The ``envs.Task`` named ``name`` that ``table`` (a ``[tasks.NAME]`` table, or a definition
+    config.json's ``task_definitions`` holds, a built-in task's among them) defines; ConfigError,
+    naming the task, otherwise. ``define_task`` checks the name first."""
     if not isinstance(table, Mapping):
         raise ConfigError(f"task {name!r} must be a table: write [tasks.{name}] and KEY = VALUE lines")
     unknown = sorted(set(table) - set(TASK_KEYS))

@@ -1,7 +1,10 @@
 """The reading verbs against damaged or mismatched run directories (issue #59).
 
-Two finished smoke runs, NEAT and OpenAI-ES, are copied afresh for each check and one file of
-the copy is damaged. Every reading verb (``plot``, ``compare``, ``replay``, ``view``, ``score``,
+Four finished smoke runs are copied afresh for each check and one file of the copy is damaged:
+NEAT and OpenAI-ES as the paper runs them, and two made with the newer run features (a task file's
+task with every drift field, the skill archive, NEAT's ``wp`` regulariser with ``lambda_2``,
+sep-CMA-ES with the functional regulariser), whose config.json holds ``tasks`` and
+``task_definitions`` and whose summary.json's held-out block scores the archive. Every reading verb (``plot``, ``compare``, ``replay``, ``view``, ``score``,
 and ``--resume`` and ``--start-from`` where a run reads another) must then exit 0 or 2, print no
 traceback, give exactly one ``error:`` line on a refusal, and leave every file it does not own
 byte for byte (a verb that only reads, on a refusal: every file). One test per case the issue
@@ -20,19 +23,27 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
+from lifelong_evo import checkpoint
 from lifelong_evo.commands import view
 from lifelong_evo.commands.cli import main
 from lifelong_evo.commands.sweep import trial_state
 from lifelong_evo.rundir import RunDir
 from tests.test_command_line_fuzz import SIZE, snapshot
 
-KINDS = {"neat": [], "es": ["--algo", "openai-es"]}
+TASK_FILE = Path(__file__).parent / "data" / "damaged-runs-tasks.toml"
+"""Defines ``red-south``: the nest at the bottom, a costlier wrong pick, one robot failed, worn motors."""
+FEATURES = ["--schedule", "red:2,red-south:2,red:2", "--tasks", str(TASK_FILE), "--archive", "--reg", "2"]
+"""A task file's task between two red phases, and the skill archive (lambda 2: ``--start-from``'s
+``--reg 1`` differs from it only after the first task)."""
+KINDS = {"neat": [], "es": ["--algo", "openai-es"],
+         "wp": [*FEATURES, "--regulariser", "wp", "--option", "lambda_2=0.5"],
+         "sep": [*FEATURES, "--algo", "sep-cmaes", "--regulariser", "functional"]}
 """The finished runs, by name, and the flags that made them beside ``SIZE``."""
 
 
 @pytest.fixture(scope="module")
 def finished(tmp_path_factory) -> Path:
-    """A folder holding the finished runs ``neat`` and ``es`` (``KINDS``), never changed: copy them."""
+    """A folder holding the finished runs of ``KINDS``, by name, never changed: copy them."""
     out = tmp_path_factory.mktemp("finished")
     for name, flags in KINDS.items():
         assert main([*SIZE, *flags, "--out", str(out), "--name", name, "--quiet"]) == 0
@@ -169,6 +180,31 @@ CASES = [
      every_controller(lambda c: c["genome"]["connections"][0].update(weight=float("nan"))), ["replay", "score"]),
     ("ES controller parameter infinite", "es", edit_json(FINAL, lambda c: c["parameters"].__setitem__(3, float("inf"))),
      ["replay"]),
+    # the runs with the newer features: config.json's keys written beside the settings were read
+    # unchecked (a traceback in --resume, --start-from and compare, or a damage read as it stood),
+    # and summary.json's archive was never checked
+    ("config.json task_definitions a task's not an object", "wp",
+     edit_json("config.json", lambda c: c["task_definitions"].update({"red-south": "x"})),
+     ["--resume", "--start-from", "plot", "replay", "score"]),
+    ("config.json task_definitions motor_gain 'x'", "sep",
+     edit_json("config.json", lambda c: c["task_definitions"]["red-south"].update(motor_gain="x")), ["compare", "score"]),
+    ("config.json task_definitions not the schedule's tasks", "sep", setting("task_definitions", {}), ["replay"]),
+    ("config.json env_resolved a string", "wp", setting("env_resolved", "x"), ["--resume", "--start-from", "compare"]),
+    ("config.json algo_options_resolved lambda_2 'x'", "wp", option("algo_options_resolved", "lambda_2", "x"),
+     ["compare", "--resume"]),
+    ("config.json algo_options_resolved another family's option", "sep",
+     option("algo_options_resolved", "lambda_2", 0.5), ["plot"]),
+    ("summary.json archive a string", "sep", edit_json("summary.json", lambda s: s["held_out"].update(archive="x")),
+     ["plot", "compare", "score"]),
+    ("summary.json archive of a task not played", "wp",
+     edit_json("summary.json", lambda s: s["held_out"]["archive"].update(blue={"controller": "task0-red-top", "score": 1})),
+     ["compare"]),
+    ("summary.json archive controller a list", "wp",
+     edit_json("summary.json", lambda s: s["held_out"]["archive"]["red"].update(controller=[])), ["plot"]),
+    ("summary.json archive score a string", "sep",
+     edit_json("summary.json", lambda s: s["held_out"]["archive"]["red"].update(score="x")), ["compare"]),
+    ("summary.json archive_mean a list", "wp", edit_json("summary.json", lambda s: s["held_out"].update(archive_mean=[])),
+     ["score"]),
 ]
 REFUSALS = [pytest.param(kind, damage, verb, id=f"{name}-{verb}") for name, kind, damage, verbs in CASES
             for verb in verbs]
@@ -201,14 +237,37 @@ def test_a_file_that_is_not_json_is_refused_with_the_way_out(name, work, capsys)
     assert "is not valid JSON" in err and err.endswith(": restore it from a copy of the run, or run the run again\n")
 
 
-def test_a_sweep_does_not_resume_a_trial_whose_config_json_is_damaged(work):
+@pytest.mark.parametrize(("kind", "damage", "key", "named"), [
+    ("neat", option("env", "see_other_agents", "no"), "env", "see_other_agents"),
+    ("wp", edit_json("config.json", lambda c: c["task_definitions"].update({"red-south": []})), "task_definitions",
+     "red-south"),
+    ("sep", setting("algo_options_resolved", ["x"]), "algo_options_resolved", "['x']"),
+])
+def test_a_sweep_does_not_resume_a_trial_whose_config_json_is_damaged(kind, damage, key, named, work):
     """A sweep's trial is resumed from its config.json as ``--resume`` is: one whose environment
-    option is of the wrong type is failed, naming the key, not continued with the value as it stands."""
-    run = work / "runs" / "neat"
+    option, task definition or resolved options are damaged is failed, naming the key, not
+    continued with the value as it stands (nor a traceback)."""
+    run = work / "runs" / kind
     config = RunDir(run).read_config()
-    option("env", "see_other_agents", "no")(run)
+    damage(run)
     state, why = trial_state(run, config)
-    assert state == "failed" and "key 'env'" in why and "see_other_agents" in why, (state, why)
+    assert state == "failed" and f"key {key!r}" in why and named in why, (state, why)
+
+
+@pytest.mark.parametrize("archive", ["x", {"red": "x"}, {"red": {"genome": 5}}, {"blue": {}}])
+def test_resume_refuses_a_checkpoint_whose_archive_is_damaged(archive, work, capsys):
+    """A checkpoint's skill archive is put back into the population when its task returns: one
+    that is no object of the run's controllers by task (its checksum made to match) is refused in
+    one line naming the checkpoint, not a traceback when the task returns."""
+    run = work / "runs" / "wp"
+    newest, *_ = sorted((run / "checkpoints").glob("generation-*.pt"), reverse=True)
+    newest.unlink()  # the run ends its second task at the checkpoint before: red returns
+    path = sorted((run / "checkpoints").glob("generation-*.pt"))[-1]
+    payload = checkpoint.load(path)
+    payload["loop"]["archive"] = archive
+    checkpoint.save(path, payload)
+    err = assert_refused(command("wp", "--resume", work), work, capsys)
+    assert str(path) in err and "archive" in err, err
 
 
 def test_the_undamaged_runs_pass_every_verb(work, capsys):
@@ -259,7 +318,7 @@ def damages(draw):
     """(a description, a damage) to one file of a run."""
     name = draw(st.sampled_from(FILES))
     how = draw(st.sampled_from(["truncate", "wrong value", "out of range", "unknown task", "duplicate row",
-                                "controller shape"]))
+                                "controller shape", "held-out block", "task field"]))
     if how == "truncate":
         keep = draw(st.floats(0, 0.99))
         return f"{name} cut to {keep:.2f}", truncate(name, keep)
@@ -277,8 +336,26 @@ def damages(draw):
         if how == "controller shape" and key in ("nodes", "connections"):
             return f"{name} genome.{key}={value!r}", edit_json(name, lambda c: c.get("genome", {}).update({key: value}))
         return f"{name} {key}={value!r}", edit_json(name, lambda c: c.update({key: value}))
+    if how == "held-out block" and name == "summary.json":
+        key = draw(st.sampled_from(["archive", "archive_mean", "scores", "phases", "episodes", "current_top", "R_top",
+                                    "forgetting"]))
+        value = draw(st.one_of(WRONG_VALUES, st.just({"red": {"controller": "task0-red-top", "score": "x"}}),
+                               st.just({"blue": {"controller": "task0-red-top", "score": 1.0}})))
+        return (f"summary.json held_out.{key}={value!r}",
+                edit_json(name, lambda s: s.update(held_out={**(s.get("held_out") or {}), key: value})))
+    if how == "task field" and name == "config.json":
+        table = draw(st.sampled_from(["tasks", "task_definitions"]))
+        key = draw(st.sampled_from(["target", "season", "drop_zone", "rewards", "failed_robots", "motor_gain", "colour"]))
+        value = draw(st.one_of(WRONG_VALUES, st.sampled_from(["blue", ["blue", "red"], 10 ** 9, -1e9, float("nan")])))
+
+        def damage_tasks(config: dict) -> None:
+            for task in (config.get(table) or {}).values():
+                if isinstance(task, dict):
+                    task[key] = value
+        return f"config.json {table}.*.{key}={value!r}", edit_json(name, damage_tasks)
     keys = {"config.json": ["schedule", "population", "generations", "seed", "env", "algo_options", "algo", "reg",
-                            "held_out_episodes", "rehearsal", "evals"],
+                            "held_out_episodes", "rehearsal", "evals", "tasks", "task_definitions", "archive",
+                            "regulariser", "env_resolved", "algo_options_resolved"],
             "summary.json": ["phases", "current", "current_top", "forgetting", "R_pop", "ACC_top", "held_out",
                              "stability_gap", "wall_time_s", "centre_current"]}[name]
     key = draw(st.sampled_from(keys))
@@ -314,7 +391,7 @@ def owns(kind: str, verb: str, path: str) -> bool:
     return owned is not None and (path == owned or owned in path.parents)
 
 
-@settings(max_examples=40, deadline=None, derandomize=True, database=None,
+@settings(max_examples=60, deadline=None, derandomize=True, database=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(kind=st.sampled_from(list(KINDS)), verb=st.sampled_from([*VERBS, "--resume", "--start-from"]),
        damage=damages())
@@ -335,6 +412,7 @@ def test_every_reading_verb_refuses_damage_in_one_line_or_reads_it(kind, verb, d
     after = snapshot(work)
     shutil.rmtree(work)
     event(f"{verb}: exit {code}")
+    event(f"run {kind}")
     assert code in (0, 2), (described, argv, code, err)
     assert "Traceback" not in err, (described, argv, err)
     changed = [p for p in before.keys() | after.keys() if before.get(p) != after.get(p)]
