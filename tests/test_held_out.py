@@ -126,7 +126,7 @@ def test_score_a_controller_file_on_tasks_a_file_defines(tmp_path, capsys):
     (["score", "/no/such/run"], "does not exist"),
     (["score", "RUN", "--episodes", "0"], "--episodes must be >= 1"),
     (["score", "RUN", "--episodes", "ten"], "--episodes: 'ten' is not an integer"),
-    (["score", "BAD"], "is not an exported controller"),
+    (["score", "BAD"], "/bad.json is not an exported controller"),  # the file, named by its whole path
 ])
 def test_score_refuses_bad_input_in_one_line(tmp_path, argv, message, capsys):
     assert main(["--algo", "neat", "--preset", "smoke", "--schedule", "red:2,green:2", "--out", str(tmp_path),

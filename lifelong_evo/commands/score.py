@@ -96,13 +96,13 @@ def score_run(run_dir: RunDir, episodes: int | None = None) -> dict[str, Any]:
     return block
 
 
-def _check_controllers(where: str, controllers: dict[str, Any]) -> None:
-    """UserError naming the first of ``controllers`` that is no exported controller."""
-    for name, exported in controllers.items():
+def _check_controllers(controllers: dict[Path, Any]) -> None:
+    """UserError naming the file of the first of ``controllers`` (by file) that is no exported controller."""
+    for path, exported in controllers.items():
         try:
             policy_from_export(exported, "cpu")
         except Exception as error:  # noqa: BLE001 - whatever a damaged file breaks, it is refused by name
-            raise UserError(f"{where}: {name} is not an exported controller ({type(error).__name__}: {error}): "
+            raise UserError(f"{path} is not an exported controller ({type(error).__name__}: {error}): "
                             "give a file that a run wrote to its controllers/ folder") from None
 
 
@@ -116,9 +116,10 @@ def main(args: argparse.Namespace) -> int:
             runs += [RunDir(path) for path in find_run_dirs([given])]
     for run_dir in runs:  # every run readable before any is scored or rewritten
         run_dir.checked_summary()  # its figures are kept beside the new block: one that cannot be read is refused
-        _check_controllers(str(run_dir.path), run_dir.read_controllers())
+        _check_controllers({run_dir.controllers / f"{name}.json": exported
+                            for name, exported in run_dir.read_controllers().items()})
     for path, exported, config in files:
-        _check_controllers(str(path.parent), {path.name: exported})
+        _check_controllers({path: exported})
         try:
             numerics.use(config.numerics)
             scores = score_controllers({path.stem: exported}, config.env_config(), distinct_tasks(config.phases()),
