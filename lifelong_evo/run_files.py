@@ -15,7 +15,8 @@ one ``error:`` line), never as an exception halfway through its work. Nothing he
   schedule that parses (its canonical spelling is the configuration's) and an arena the
   environment accepts; and, where written, the keys written beside the settings that are read:
   ``env_resolved`` and ``algo_options_resolved`` (objects of options, as ``env`` and
-  ``algo_options``) and ``task_definitions`` (a definition of each task of the schedule).
+  ``algo_options``) and ``task_definitions`` (a definition of each task of the schedule, the one
+  config.json's ``tasks`` table gives where one defines it).
 - ``check_summary``: summary.json is an object whose ``phases`` are the first tasks of
   config.json's schedule, in order (``metrics.summarise`` writes one per ended phase), and whose
   figures, where present, are numbers (or null) where the readers expect them: the per-phase
@@ -166,11 +167,16 @@ def _check_task_definitions(values: dict[str, Any], path: Path, config: RunConfi
     if set(defined) != set(scheduled):
         raise RunDirError(f"{where}: defines {_shown(sorted(defined))}, where config.json's schedule "
                           f"{config.schedule!r} plays {_shown(scheduled)}: {RESTORE}")
+    tables = config.tasks or {}
     for name, definition in defined.items():
         try:
-            task_from_table(name, definition)
+            task = task_from_table(name, definition)
         except ConfigError as error:
             raise RunDirError(f"{where}: {error}: {RESTORE}") from None
+        if name in tables and task.definition() != task_from_table(name, tables[name]).definition():
+            # replay and score play the tables' task, --resume compares the definition: they must agree
+            raise RunDirError(f"{where}: the definition of {name!r} is not what config.json's tasks table "
+                              f"{name!r} defines: {RESTORE}")
 
 
 def check_summary(values: Any, path: Path, config: RunConfig) -> dict[str, Any]:

@@ -189,6 +189,9 @@ CASES = [
     ("config.json task_definitions motor_gain 'x'", "sep",
      edit_json("config.json", lambda c: c["task_definitions"]["red-south"].update(motor_gain="x")), ["compare", "score"]),
     ("config.json task_definitions not the schedule's tasks", "sep", setting("task_definitions", {}), ["replay"]),
+    # a valid definition the tables do not give: --resume compared one task, replay and score played another
+    ("config.json task_definitions motor_gain not the table's", "wp",
+     edit_json("config.json", lambda c: c["task_definitions"]["red-south"].update(motor_gain=0.5)), ["replay", "score"]),
     ("config.json env_resolved a string", "wp", setting("env_resolved", "x"), ["--resume", "--start-from", "compare"]),
     ("config.json algo_options_resolved lambda_2 'x'", "wp", option("algo_options_resolved", "lambda_2", "x"),
      ["compare", "--resume"]),
