@@ -581,11 +581,12 @@ def _archive_problem(archive: Any, config: RunConfig) -> str | None:
     if not isinstance(archive, dict):
         return f"its archive is a {type(archive).__name__}, not an object of controllers by task"
     tasks = {task.name for task in distinct_tasks(config.phases())}
+    obs_dim = config.env_config().obs_dim
     for name, exported in archive.items():
         if name not in tasks:
             return f"its archive holds a controller for {name!r}, no task of the schedule"
         try:
-            check_export(exported, config.env_config().obs_dim)
+            check_export(exported, obs_dim)
         except ExportError as error:
             return f"its archived controller for {name!r} is no controller of this run: {error}"
     return None

@@ -140,7 +140,7 @@ def _check_resolved(values: dict[str, Any], path: Path, algo: str, optimizer: An
     for key, cls, owner, listed_by in (
             ("env_resolved", ForagingConfig, "environment", LISTED_BY),
             ("algo_options_resolved", getattr(optimizer, "Options", None), algo, f"{LISTED_BY} --algo {algo}")):
-        if key not in values or key not in written_beside or cls is None:  # cls: an optimiser this process does not know
+        if key not in values or key not in written_beside or cls is None:  # None: an optimiser unknown here
             continue
         value = values[key]
         if not isinstance(value, dict):
@@ -271,12 +271,14 @@ def _check_archive(held: dict[str, Any], where: str, phases: list[str], scores: 
         for task, kept in archive.items():
             if task not in phases:
                 raise RunDirError(f"{at}: {task!r} is not a task of the block's phases {phases}: {RESTORE}")
-            if not isinstance(kept, dict) or not isinstance(kept.get("controller"), str) or kept["controller"] not in scores:
+            named = kept.get("controller") if isinstance(kept, dict) else None
+            if not isinstance(named, str) or named not in scores:
                 raise RunDirError(f"{at}, {task!r}: {_shown(kept)} is not an object naming a controller the block "
                                   f"scores ('controller') and its score ('score'): {RESTORE}")
-            if not _is_number(kept.get("score")):
-                raise RunDirError(f"{at}, {task!r}, 'score': {_shown(kept.get('score'))} is {_kind(kept.get('score'))}, "
-                                  f"not a number: {RESTORE}")
+            score = kept.get("score")
+            if not _is_number(score):
+                raise RunDirError(f"{at}, {task!r}, 'score': {_shown(score)} is {_kind(score)}, not a number: "
+                                  f"{RESTORE}")
     if SummaryLayout.ARCHIVE_MEAN in held:
         _figure(held[SummaryLayout.ARCHIVE_MEAN], f"{where}, key {SummaryLayout.ARCHIVE_MEAN!r}")
 

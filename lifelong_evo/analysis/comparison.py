@@ -554,15 +554,15 @@ def comparison(paths, episodes: str = "held-out", baseline: dict[str, str] | Non
     tags = names if len(set(names)) == len(names) else [str(run.path) for run in runs]
     configs = [run.config for run in runs]
     triples = [(run.config, run.summary, tag) for run, tag in zip(runs, tags)]
+    summaries = {tag: summary for _, summary, tag in triples}
     if choose_on == HELD_OUT:
-        _check_held_out(select_model_specific(triples), dict(zip(tags, (r.summary for r in runs))))
+        _check_held_out(select_model_specific(triples), summaries)
     selections = select_model_specific(triples, choose_on)
     if lambda_per_seed:
         selections = _with_given(selections, lambda_per_seed)
     if not selections:
         return Comparison(rows, markdown, None, [])
-    ms_rows, ms_markdown = model_specific_report(selections, dict(zip(tags, (r.summary for r in runs))), configs,
-                                                 episodes, choose_on)
+    ms_rows, ms_markdown = model_specific_report(selections, summaries, configs, episodes, choose_on)
     ms_json = [{"configuration": model_specific_label(s["config"], configs), "criterion": CRITERION,
                 "chosen_on": choose_on,
                 "choices": s["choices"], "left_out": [{"seed": seed, "lambdas": regs}
@@ -585,7 +585,8 @@ def _check_held_out(selections: list[dict[str, Any]], summaries: dict[Any, dict[
         shown = ", ".join(lacking[:3]) + (f" and {len(lacking) - 3} more" if len(lacking) > 3 else "")
         raise UserError(f"--choose-lambda-on held-out: {shown} has no held-out score of {CRITERION} "
                         "(summary.json's held_out block, written by runs with held-out episodes): choose on the "
-                        "training episodes (--choose-lambda-on selection-time, the default), or compare runs scored held-out")
+                        "training episodes (--choose-lambda-on selection-time, the default), or compare runs "
+                        "scored held-out")
 
 
 def _with_given(selections: list[dict[str, Any]], lambda_per_seed: dict[int, float]) -> list[dict[str, Any]]:

@@ -3,8 +3,8 @@ without lambda and each seed, the lambda maximising ``C_top(phase 1) + R_top(tas
 the end of phase 1)`` (the top individual's current performance plus its retention of the first
 task at the end of the second task: the controller one would deploy, good at both; ties go to the
 smaller lambda), chosen on the selection-time figures (the training episodes; ``--choose-lambda-on
-held-out``: on the held-out episodes, ``CHOOSE_ON``) and reported as a configuration of its own with the chosen lambda per seed, its tables held-out where the chosen
-runs have the block; beside it the one lambda for all seeds, the highest mean of the same
+held-out``: on the held-out episodes, ``CHOOSE_ON``) and reported as a configuration of its own
+with the chosen lambda per seed, its tables held-out where the chosen runs have the block; beside it the one lambda for all seeds, the highest mean of the same
 criterion over the seeds (``select_model_specific``, ``model_specific_report``). Every seed chooses
 among the same lambdas: a seed without a finished run of each is left out, and named. Weight
 protection's (lambda_1, lambda_2) pairs are one swept value each; a lambda-0 run is a candidate of
@@ -29,7 +29,8 @@ from ..config import RunConfig
 from ..errors import UserError
 from ..runs import configuration_of, describe_config
 from ..summary_json import SummaryLayout
-from .tables import HELD_OUT, OVERVIEW, SELECTION_TIME, Estimate, cell, csv_rows, estimates, overview_row, section, table
+from .tables import (HELD_OUT, OVERVIEW, SELECTION_TIME, Estimate, cell, csv_rows, estimates, overview_row, section,
+                     table)
 
 CRITERION = "C_top(phase 1) + R_top(task of phase 0 at end of phase 1)"
 
@@ -252,8 +253,8 @@ def model_specific_report(selections: list[dict[str, Any]], summaries: dict[Any,
     """``compare_table``'s rows and markdown for the m.s. configurations (the chosen lambdas in
     ``reg``): an overview line per m.s. configuration with the lambda per seed and the criterion,
     then its tables; means over seeds of the chosen runs with their 95% t-interval. The lambdas
-    were chosen on ``choose_on``'s figures (``select_model_specific``); the chosen runs are reported as ``episodes`` says
-    (held-out where they have the block, by default). A selection with ``given`` choices
+    were chosen on ``choose_on``'s figures (``select_model_specific``); the chosen runs are
+    reported as ``episodes`` says (held-out where they have the block, by default). A selection with ``given`` choices
     (``given_choices``) adds a configuration ``reg=given`` with those, reported the same way."""
     rows: list[dict[str, Any]] = []
     overview, sections = [], []

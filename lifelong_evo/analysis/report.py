@@ -34,18 +34,20 @@ def summary_table(summary: dict[str, Any]) -> str:
     forgetting of each earlier task at each later task end, then the transfer metrics."""
     keys = SummaryLayout
     tops = summary.get(keys.CURRENT_TOP) or [None] * len(summary[keys.CURRENT])
+    phases = enumerate(zip(summary[keys.PHASES], summary[keys.CURRENT], tops))
     lines = aligned(["phase", "task", "C (current)", "top individual"],
-                    [[str(i), name, _fmt(c), _fmt(top)]
-                     for i, (name, c, top) in enumerate(zip(summary[keys.PHASES], summary[keys.CURRENT], tops))], left=(1,))
+                    [[str(i), name, _fmt(c), _fmt(top)] for i, (name, c, top) in phases], left=(1,))
     if summary[keys.FORGETTING]:
         lines.append("")
-        lines += aligned(["at end of", "task", "R_pop", "F_pop", "R_top", "F_top"],
-                         [[str(row["at_end_of"]), row["task"], *(_fmt(row[m]) for m in ("R_pop", "F_pop", "R_top", "F_top"))]
+        figures = ("R_pop", "F_pop", "R_top", "F_top")
+        lines += aligned(["at end of", "task", *figures],
+                         [[str(row["at_end_of"]), row["task"], *(_fmt(row[m]) for m in figures)]
                           for row in summary[keys.FORGETTING]], left=(1,))
     if keys.transfer("ACC", "pop") in summary:
         lines.append("")
-        lines += aligned(["", *keys.TRANSFER], [[level, *(_fmt(summary[keys.transfer(m, level)]) for m in keys.TRANSFER)]
-                                               for level in ("pop", "top")], left=(0,))
+        lines += aligned(["", *keys.TRANSFER],
+                         [[level, *(_fmt(summary[keys.transfer(m, level)]) for m in keys.TRANSFER)]
+                          for level in ("pop", "top")], left=(0,))
     lines.append(f"\nwall time: {duration(summary[keys.WALL_TIME])}")
     machines = summary.get(keys.MACHINES, [])
     for where in machines:

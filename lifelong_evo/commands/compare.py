@@ -1,6 +1,6 @@
 """``python -m lifelong_evo compare RUN_OR_DIR... [--out DIR] [--baseline KEY=VALUE,...] [--holm ...]
-[--per-seed-lambda SEED=LAMBDA,...] [--choose-lambda-on ...] [--episodes ...]``: configurations side by side over seeds, and
-each against its baseline.
+[--per-seed-lambda SEED=LAMBDA,...] [--choose-lambda-on ...] [--episodes ...]``: configurations
+side by side over seeds, and each against its baseline.
 
 The verb parses and calls: ``analysis.comparison`` computes the tables (its docstring says what
 each file holds and how baselines, episodes and the model-specific lambda are chosen),

@@ -69,7 +69,8 @@ def _episodes(text: str | None) -> int | None:
 def _file_config(path: Path, args: argparse.Namespace) -> RunConfig:
     """The configuration a loose controller file is scored in: its run's, else the flags'."""
     run = RunDir(path.parent.parent)
-    if path.parent.name == "controllers" and run.config.is_file() and not (args.schedule or args.env or args.tasks_file):
+    flags = args.schedule or args.env or args.tasks_file
+    if path.parent.name == "controllers" and run.config.is_file() and not flags:
         return run.read_config()
     overrides: dict[str, Any] = {"env": parse_assignments(args.env, "--env")} if args.env else {}
     if args.schedule:
