@@ -1,5 +1,6 @@
 """The JSON files of a run directory (config.json, summary.json, controllers, the marker),
-written atomically and read back as one ``RunDirError`` line where they are missing or damaged.
+written atomically and read back as one ``RunDirError`` line where they are missing or damaged
+(``NaN`` and ``Infinity``, which Python's json reads and JSON has not, are damage).
 What they must hold is checked by ``run_files``."""
 from __future__ import annotations
 
@@ -21,9 +22,19 @@ def _jsonable(value):
     raise TypeError(f"{type(value).__name__} is not JSON serialisable")
 
 
+class _NotJSON(ValueError):
+    """Python's NaN, Infinity or -Infinity, which its json module reads and JSON has not."""
+
+
+def _refuse_constant(name: str) -> Any:
+    raise _NotJSON(name)
+
+
 def read_json(path: Path) -> Any:
     try:
-        return json.loads(Path(path).read_text())
+        return json.loads(Path(path).read_text(), parse_constant=_refuse_constant)
+    except _NotJSON as error:  # no figure or weight of a run is one: a damaged file
+        raise RunDirError(f"{path} holds {error}, which is no number of JSON's: {RESTORE}") from None
     except (FileNotFoundError, NotADirectoryError):
         raise RunDirError(f"{path} does not exist: is this a run directory?") from None
     except UnicodeDecodeError as error:  # JSON is UTF-8 text: a damaged file

@@ -563,7 +563,9 @@ def _resume(config: RunConfig, run_dir: RunDir, optimizer, generator, layout: Me
         raise checkpoint.CorruptCheckpointError(f"{error}; {_damaged_checkpoint_advice(found, layout)}") from None
     if "pickle" in (payload.get("optimizer") or {}):
         raise checkpoint.older_version_error(path)
-    if RunConfig.outcome_settings(payload.get("config") or {}) != RunConfig.outcome_settings(config.to_dict()):
+    # a checkpoint written before a default changed holds the options as given: both resolved as the run did
+    if RunConfig.outcome_settings(run_dir.with_recorded_defaults(payload.get("config") or {})) != \
+            RunConfig.outcome_settings(run_dir.with_recorded_defaults(config.to_dict())):
         raise ResumeError(f"checkpoint {path} belongs to another configuration: delete it or start a new run")
     problem = _archive_problem((payload.get("loop") or {}).get("archive", {}), config)
     if problem:

@@ -15,7 +15,7 @@ one ``error:`` line), never as an exception halfway through its work. Nothing he
   schedule that parses (its canonical spelling is the configuration's) and an arena the
   environment accepts; and, where written, the keys written beside the settings that are read:
   ``env_resolved`` and ``algo_options_resolved`` (objects of options, as ``env`` and
-  ``algo_options``) and ``task_definitions`` (a definition of each task of the schedule, the one
+  ``algo_options``, holding each option those give at the given value) and ``task_definitions`` (a definition of each task of the schedule, the one
   config.json's ``tasks`` table gives where one defines it).
 - ``check_summary``: summary.json is an object whose ``phases`` are the first tasks of
   config.json's schedule, in order (``metrics.summarise`` writes one per ended phase), and whose
@@ -32,6 +32,7 @@ here: reading a run needs only its files.
 """
 from __future__ import annotations
 
+import json
 from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
@@ -61,6 +62,11 @@ def _kind(value: Any) -> str:
     """What a JSON value is, in words: ``a list``, ``a string``, ..."""
     return {dict: "an object", list: "a list", str: "a string", bool: "a boolean", int: "an integer",
             float: "a number", type(None): "null"}.get(type(value), type(value).__name__)
+
+
+def as_json(value: Any) -> Any:
+    """``value`` as JSON holds it (tuples are lists; 11 and 11.0 compare equal)."""
+    return json.loads(json.dumps(value))
 
 
 def _is_number(value: Any) -> bool:
@@ -125,18 +131,21 @@ def check_config(values: Any, path: Path, written_beside: Iterable[str] = ()) ->
         config.env_config()
     except (ConfigError, TypeError, ValueError) as error:  # an option ForagingConfig does not have or take
         raise RunDirError(f"{path}, key 'env': {error}: {RESTORE}") from None
-    _check_resolved(values, path, algo, optimizer, set(written_beside))
+    _check_resolved(values, path, algo, optimizer, set(written_beside),
+                    {"env_resolved": typed["env"], "algo_options_resolved": typed.get("algo_options", {})})
     _check_task_definitions(values, path, config, set(written_beside))
     return config
 
 
 def _check_resolved(values: dict[str, Any], path: Path, algo: str, optimizer: Any,
-                    written_beside: set[str]) -> None:
+                    written_beside: set[str], given: dict[str, dict[str, Any]]) -> None:
     """config.json's resolved environment and optimiser options (``env_resolved``,
     ``algo_options_resolved``), where written: objects whose every option is one of the
     environment's or the optimiser's, of its type and within its bounds, as ``env`` and
-    ``algo_options`` are (``--resume`` compares them and ``compare`` reads them in their place). A
-    config.json written before one existed has none; an option added since is at its default."""
+    ``algo_options`` are, and holding each option ``env`` and ``algo_options`` give (``given``, by
+    resolved key, typed) at its given value (``--resume`` continues with them, ``compare`` reads
+    them in place of the given ones: the two must say one thing). A config.json written before one
+    existed has none; an option added since is at its default."""
     for key, cls, owner, listed_by in (
             ("env_resolved", ForagingConfig, "environment", LISTED_BY),
             ("algo_options_resolved", getattr(optimizer, "Options", None), algo, f"{LISTED_BY} --algo {algo}")):
@@ -147,9 +156,14 @@ def _check_resolved(values: dict[str, Any], path: Path, algo: str, optimizer: An
             raise RunDirError(f"{path}, key {key!r}: {_shown(value)} is {_kind(value)}, not an object of options: "
                               f"{RESTORE}")
         try:
-            parse_table(cls, value, owner, "option", listed_by, text=False)
+            resolved = parse_table(cls, value, owner, "option", listed_by, text=False)
         except ConfigError as error:
             raise RunDirError(f"{path}, key {key!r}: {error}: {RESTORE}") from None
+        table = key[:-len("_resolved")]
+        for option, stated in given[key].items():
+            if option in resolved and as_json(resolved[option]) != as_json(stated):
+                raise RunDirError(f"{path}, key {key!r}: {option} is {_shown(resolved[option])}, where key {table!r} "
+                                  f"gives {_shown(stated)}: {RESTORE}")
 
 
 def _check_task_definitions(values: dict[str, Any], path: Path, config: RunConfig, written_beside: set[str]) -> None:

@@ -21,7 +21,6 @@ and ``runs`` reads finished runs back for ``plot``, ``compare`` and ``sweep``.
 """
 from __future__ import annotations
 
-import json
 import os
 import re
 import shutil
@@ -38,7 +37,7 @@ from .errors import RunDirError
 from .json_files import read_json, write_json
 from .metrics_csv import METRICS_FILE, SPECIES_FILE
 from .provenance import library_versions, package_version
-from .run_files import check_config, check_controller, check_summary
+from .run_files import as_json, check_config, check_controller, check_summary
 from .run_lock import LOCK, RunDirInUseError, RunLock, held_by
 from .run_names import check_out_folder, check_run_name
 from .summary_json import SUMMARY_FILE
@@ -59,11 +58,6 @@ sweep's, whose run directories are its trials inside it, and never a run directo
 
 class ResumeError(RunDirError):
     """A run directory that these settings cannot continue, or start from."""
-
-
-def _as_stored(value: Any) -> Any:
-    """``value`` as config.json holds it (tuples are lists; 11 and 11.0 compare equal)."""
-    return json.loads(json.dumps(value))
 
 
 def _regulariser_option(algo: str, key: str, regulariser: str | None = None, chosen_only: bool = False) -> bool:
@@ -257,13 +251,14 @@ class RunDir:
         same_algo = algo == stored.algo
         whole = {field_.name for field_ in fields(RunConfig)} <= set(stated)
         # another optimiser's options mean nothing; a whole configuration states all of its own
-        keep_options = stored.algo_options if same_algo and not whole else {}
+        recorded = {} if whole else self._recorded_defaults(stored, written)
+        keep_options = {**recorded.get("algo_options", {}), **stored.algo_options} if same_algo and not whole else {}
         regulariser = stated.get("regulariser", DEFAULT_REGULARISER)
         if same_algo and regulariser != DEFAULT_REGULARISER:  # the stated one's options, not the stored one's
             keep_options = {k: v for k, v in keep_options.items() if not _regulariser_option(algo, k, regulariser)}
         base = stored if same_algo else replace(stored, regulariser=DEFAULT_REGULARISER)  # nor its regulariser
         given = replace(base, **{k: v for k, v in stated.items() if k not in ("env", "algo_options")},
-                        env={**({} if whole else stored.env), **stated.get("env", {})},
+                        env={**({} if whole else {**recorded["env"], **stored.env}), **stated.get("env", {})},
                         algo_options={**keep_options, **stated.get("algo_options", {})}).validate(machine=False)
         differences = []
         theirs_defined = written.get("task_definitions")
@@ -280,10 +275,10 @@ class RunDir:
                 # numbers runs had before it existed
                 theirs = {**(stored.env_config().to_dict() if name == "env" else stored.algo_options_resolved()),
                           **(written.get(f"{name}_resolved") or {})}
-                mine, theirs = _as_stored(mine), _as_stored(theirs)
+                mine, theirs = as_json(mine), as_json(theirs)
                 differences += [(f"{name}.{key}", f"{flag} {key}={mine.get(key)!r} (stored: {theirs[key]!r})")
                                 for key in sorted(theirs) if mine.get(key) != theirs[key]]
-            elif _as_stored(value) != _as_stored(getattr(stored, name)):
+            elif as_json(value) != as_json(getattr(stored, name)):
                 differences.append((name, f"--{name.replace('_', '-')} {value!r} (stored: {getattr(stored, name)!r})"))
         # an option that differs with the regulariser is told as the regulariser's difference: one that
         # chooses it (it cannot differ by itself), or one that only some regularisers read and nobody stated
@@ -295,7 +290,7 @@ class RunDir:
         # a task's definition can change without a setting changing (a built-in task of another
         # version); a run written before config.json recorded them ran the paper's tasks
         if theirs_defined is not None:
-            mine = _as_stored(given.task_definitions())
+            mine = as_json(given.task_definitions())
             for name in sorted(set(mine) | set(theirs_defined)):
                 if name not in theirs_defined or name not in mine:
                     where = "this schedule's, not the stored one's" if name in mine else \
@@ -327,7 +322,30 @@ class RunDir:
                               "values), or start a new run (another --name, or --overwrite to replace it)")
         stored = self.read_config()
         free = {name: stated[name] for name in RunConfig.free_settings(stored.to_dict()) if name in stated}
-        return replace(stored, **free).validate(machine=False)
+        return RunConfig.from_dict({**self.with_recorded_defaults(stored.to_dict()), **free}).validate(machine=False)
+
+    def with_recorded_defaults(self, settings: dict[str, Any]) -> dict[str, Any]:
+        """A configuration's settings (``RunConfig.to_dict()``: this run's, or a checkpoint's) with the
+        options this run resolved to another value than today's default laid under its ``env`` and
+        ``algo_options`` (``_recorded_defaults``): what the run computes with wherever it goes on."""
+        recorded = self._recorded_defaults(self.read_config(), read_json(self.config))
+        return {**settings, **{table: {**recorded.get(table, {}), **(settings.get(table) or {})}
+                               for table in ("env", "algo_options") if recorded.get(table)}}
+
+    @staticmethod
+    def _recorded_defaults(stored: RunConfig, written: dict[str, Any]) -> dict[str, dict[str, Any]]:
+        """By table (``env``, ``algo_options``): each option that config.json records the run
+        resolved to another value than its given table resolves to today, the default having
+        changed since the run was written, at its recorded value. A run goes on with these, not
+        with today's defaults, so its numbers stay what it was made with; an option added since
+        (one config.json does not record) is at its default, which keeps them too."""
+        today = {"env": stored.env_config().to_dict()}
+        if stored.algo in REGISTRY:  # an optimiser this process does not know has no defaults here
+            today["algo_options"] = stored.algo_options_resolved()
+        return {given: {key: value for key, value in (written.get(resolved) or {}).items()
+                        if key in today[given] and key not in getattr(stored, given)
+                        and as_json(value) != as_json(today[given][key])}
+                for given, resolved in RESOLVED if given in today}
 
     def write_summary(self, summary: dict[str, Any]) -> None:
         write_json(self.summary, summary)

@@ -197,6 +197,17 @@ CASES = [
      ["compare", "--resume"]),
     ("config.json algo_options_resolved another family's option", "sep",
      option("algo_options_resolved", "lambda_2", 0.5), ["plot"]),
+    # the resolved options disagreeing with the given ones: compare read one, --resume the other
+    ("config.json env_resolved not the env it gives", "neat", option("env_resolved", "duration", 40),
+     ["--resume", "compare", "replay"]),
+    ("config.json algo_options_resolved not the option it gives", "wp", option("algo_options_resolved", "lambda_2", 0.25),
+     ["--resume", "compare", "--start-from"]),
+    # Python's json reads NaN and Infinity, which no writer of a run writes: compare averaged a NaN
+    ("summary.json a figure NaN", "neat",
+     edit_json("summary.json", lambda s: s.update(current=[float("nan")] * len(s["current"]))),
+     ["compare", "plot", "score"]),
+    ("summary.json held-out score infinite", "sep",
+     edit_json("summary.json", lambda s: next(iter(s["held_out"]["scores"].values())).update(red=float("inf"))), ["compare"]),
     ("summary.json archive a string", "sep", edit_json("summary.json", lambda s: s["held_out"].update(archive="x")),
      ["plot", "compare", "score"]),
     ("summary.json archive of a task not played", "wp",
@@ -271,6 +282,22 @@ def test_resume_refuses_a_checkpoint_whose_archive_is_damaged(archive, work, cap
     checkpoint.save(path, payload)
     err = assert_refused(command("wp", "--resume", work), work, capsys)
     assert str(path) in err and "archive" in err, err
+
+
+def test_resume_goes_on_with_an_option_the_run_resolved_before_its_default_changed(work, capsys):
+    """A run whose config.json records an option it did not give at another value than today's
+    default (here ``sensor_range``, as if the default had changed since) resumes without flags, its
+    checkpoints (which hold the options as given) accepted as its own, and goes on with the
+    recorded value: the checkpoints it writes from there say so."""
+    run = work / "runs" / "neat"
+    newest, *_ = sorted((run / "checkpoints").glob("generation-*.pt"), reverse=True)
+    newest.unlink()
+    edit_json("config.json", lambda c: c["env_resolved"].update(sensor_range=5.0))(run)
+    assert "sensor_range" not in checkpoint.load(sorted((run / "checkpoints").glob("generation-*.pt"))[-1])[
+        "config"]["env"]
+    assert main(command("neat", "--resume", work)) == 0, capsys.readouterr().err
+    newest, *_ = sorted((run / "checkpoints").glob("generation-*.pt"), reverse=True)
+    assert checkpoint.load(newest)["config"]["env"]["sensor_range"] == 5.0
 
 
 def test_the_undamaged_runs_pass_every_verb(work, capsys):

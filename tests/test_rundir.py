@@ -316,6 +316,37 @@ def test_an_option_added_since_a_run_was_written_is_its_default(tmp_path):
         "--regulariser 'wp' (stored: 'gd')", "--option lambda_2=0.5 (stored: 0.3)"]
 
 
+@pytest.mark.parametrize("algo, table, key, recorded, default", [
+    ("neat", "env", "sensor_range", 5.0, 4.0),
+    ("sep-cmaes", "algo_options", "sigma", 2.0, 0.5),
+])
+def test_a_run_made_under_another_default_goes_on_with_it(tmp_path, algo, table, key, recorded, default):
+    """A run whose config.json records an option it did not give at another value than today's
+    default (the default changed since it was written) goes on with the recorded value: resumed
+    without flags it is no difference (it was refused, naming a flag nobody gave), stating the
+    recorded value is none either and keeps it (the run went on with today's default, silently),
+    and stating today's default is the difference. A whole configuration (a sweep's trial) states
+    its defaults: there the change is a difference."""
+    run = RunDir(tmp_path / "old")
+    run.path.mkdir()
+    config = RunConfig(algo=algo, generations=3).validate(machine=False)
+    run.write_config(config)
+    written = json.loads(run.config.read_text())
+    written[f"{table}_resolved"][key] = recorded
+    run.config.write_text(json.dumps(written))
+    flag = "--env" if table == "env" else "--option"
+
+    def value(continued: RunConfig) -> float:
+        return getattr(continued.env_config(), key) if table == "env" else continued.algo_options_resolved()[key]
+
+    assert run.setting_differences({}) == []
+    assert value(run.continuation({})) == recorded
+    assert value(run.continuation({table: {key: recorded}})) == recorded
+    assert run.setting_differences({table: {key: default}}) == [f"{flag} {key}={default} (stored: {recorded})"]
+    assert run.setting_differences(config.to_dict()) == [f"{flag} {key}={default} (stored: {recorded})"]
+    assert run.setting_differences(run.continuation({}).to_dict()) == []
+
+
 def test_a_whole_configuration_leaves_out_only_defaults(tmp_path):
     """A whole configuration (every field: a sweep's trial, a run taking over a first task) states
     its options and environment whole: a key the run stored and it leaves out is at its default,
