@@ -487,8 +487,9 @@ def _first_task_of(source: RunDir, config: RunConfig, run_dir: RunDir) -> tuple[
     and refused where damaged, before the new run directory is made."""
     check_start_from(config, run_dir, source)
     payload = checkpoint.load(source.first_task_end)
-    if RunConfig.outcome_settings(payload.get("config") or {}) != RunConfig.outcome_settings(
-            source.read_config().to_dict()):
+    # written by a run resumed after a default changed, it holds the values the run recorded
+    if RunConfig.outcome_settings(source.with_recorded_defaults(payload.get("config") or {})) != \
+            RunConfig.outcome_settings(source.with_recorded_defaults(source.read_config().to_dict())):
         raise ResumeError(f"--start-from {source.path}: its {source.first_task_end.name} belongs to another "
                           "configuration than its config.json: restore the file from a copy of that run, or start "
                           "this run without --start-from")

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterable
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -160,10 +160,14 @@ def _check_resolved(values: dict[str, Any], path: Path, algo: str, optimizer: An
         except ConfigError as error:
             raise RunDirError(f"{path}, key {key!r}: {error}: {RESTORE}") from None
         table = key[:-len("_resolved")]
-        for option, stated in given[key].items():
-            if option in resolved and as_json(resolved[option]) != as_json(stated):
+        try:  # the given options as the run resolved them (a class may normalise a value it is given)
+            normalised = asdict(cls(**{**resolved, **given[key]}))
+        except (ConfigError, TypeError, ValueError) as error:
+            raise RunDirError(f"{path}, key {key!r}: {error}: {RESTORE}") from None
+        for option in given[key]:
+            if option in resolved and as_json(resolved[option]) != as_json(normalised[option]):
                 raise RunDirError(f"{path}, key {key!r}: {option} is {_shown(resolved[option])}, where key {table!r} "
-                                  f"gives {_shown(stated)}: {RESTORE}")
+                                  f"gives {_shown(given[key][option])}: {RESTORE}")
 
 
 def _check_task_definitions(values: dict[str, Any], path: Path, config: RunConfig, written_beside: set[str]) -> None:

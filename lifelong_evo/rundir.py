@@ -60,6 +60,17 @@ class ResumeError(RunDirError):
     """A run directory that these settings cannot continue, or start from."""
 
 
+def _reads(config: RunConfig, key: str) -> bool:
+    """Whether a run of ``config`` reads its optimiser's option ``key`` as a value of its own: not
+    one that chooses a regulariser (the stored ``regulariser`` says which), nor one only another
+    regulariser reads (``_regulariser_option``), nor, at lambda 0, one that only weighs the penalty
+    (``Optimizer.lambda_options``). Such an option changes no number of the run, and stating it is
+    refused (``resolve_regulariser``)."""
+    optimizer = REGISTRY[config.algo]
+    return not _regulariser_option(config.algo, key, config.regulariser) and not (
+        config.reg == 0 and key in optimizer.lambda_options)
+
+
 def _regulariser_option(algo: str, key: str, regulariser: str | None = None, chosen_only: bool = False) -> bool:
     """Whether option ``key`` of ``algo`` chooses a regulariser (``Optimizer.regularisers``) or, unless
     ``chosen_only``, only some regularisers read it (``Optimizer.options_used_by``); with
@@ -276,8 +287,13 @@ class RunDir:
                 theirs = {**(stored.env_config().to_dict() if name == "env" else stored.algo_options_resolved()),
                           **(written.get(f"{name}_resolved") or {})}
                 mine, theirs = as_json(mine), as_json(theirs)
+                # an option only another regulariser reads, which nobody stated, changes no number
+                # (its default may have changed since the run was written)
+                unread = set() if name == "env" or not same_algo else {
+                    key for key in theirs if key not in stated.get("algo_options", {}) and key in
+                    REGISTRY[algo].options_used_by and not _reads(given, key) and not _reads(stored, key)}
                 differences += [(f"{name}.{key}", f"{flag} {key}={mine.get(key)!r} (stored: {theirs[key]!r})")
-                                for key in sorted(theirs) if mine.get(key) != theirs[key]]
+                                for key in sorted(theirs) if mine.get(key) != theirs[key] and key not in unread]
             elif as_json(value) != as_json(getattr(stored, name)):
                 differences.append((name, f"--{name.replace('_', '-')} {value!r} (stored: {getattr(stored, name)!r})"))
         # an option that differs with the regulariser is told as the regulariser's difference: one that
@@ -344,7 +360,8 @@ class RunDir:
             today["algo_options"] = stored.algo_options_resolved()
         return {given: {key: value for key, value in (written.get(resolved) or {}).items()
                         if key in today[given] and key not in getattr(stored, given)
-                        and as_json(value) != as_json(today[given][key])}
+                        and as_json(value) != as_json(today[given][key])
+                        and (given == "env" or _reads(stored, key))}
                 for given, resolved in RESOLVED if given in today}
 
     def write_summary(self, summary: dict[str, Any]) -> None:

@@ -300,6 +300,22 @@ def test_resume_goes_on_with_an_option_the_run_resolved_before_its_default_chang
     assert checkpoint.load(newest)["config"]["env"]["sensor_range"] == 5.0
 
 
+def test_start_from_takes_a_first_task_written_after_a_default_changed(work, capsys):
+    """A source run resumed before its first task's end after a default changed wrote its
+    first-task-end.pt with the value config.json records it resolved: a run stating that value
+    starts from it (it was refused as a checkpoint of another configuration than its config.json)."""
+    source = work / "runs" / "wp"
+    edit_json("config.json", lambda c: c["env_resolved"].update(sensor_range=5.0))(source)
+    path = source / "checkpoints" / "first-task-end.pt"
+    payload = checkpoint.load(path)
+    payload["config"]["env"]["sensor_range"] = 5.0
+    checkpoint.save(path, payload)
+    argv = command("wp", "--start-from", work)
+    assert main([*argv, "--env", "sensor_range=5.0"]) == 0, capsys.readouterr().err
+    err = assert_refused(argv, work, capsys)
+    assert "--env sensor_range=4.0 (stored: 5.0)" in err, err
+
+
 def test_the_undamaged_runs_pass_every_verb(work, capsys):
     """The checks refuse only damage: each verb that reads a run's files reads each finished run as
     it was written."""

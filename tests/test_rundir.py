@@ -347,6 +347,50 @@ def test_a_run_made_under_another_default_goes_on_with_it(tmp_path, algo, table,
     assert run.setting_differences(run.continuation({}).to_dict()) == []
 
 
+def test_an_option_the_run_does_not_read_is_no_difference_when_its_default_changes(tmp_path):
+    """A run under the genetic distance records weight protection's ``lambda_2``, which it never
+    reads, at another value than today's default: it resumes, with nothing laid under its options
+    (laying it under was refused as an option only ``wp`` reads, naming a flag nobody gave), and a
+    whole configuration of it is no other configuration either."""
+    run = RunDir(tmp_path / "gd")
+    run.path.mkdir()
+    config = RunConfig(algo="neat", reg=11.0, generations=3).validate(machine=False)
+    run.write_config(config)
+    written = json.loads(run.config.read_text())
+    written["algo_options_resolved"]["lambda_2"] = 0.5
+    run.config.write_text(json.dumps(written))
+    assert run.setting_differences({}) == [] and run.setting_differences(config.to_dict()) == []
+    continued = run.continuation({})
+    assert continued.regulariser == "gd" and "lambda_2" not in continued.algo_options
+
+
+def test_an_option_its_optimiser_normalises_is_resolved_as_written(tmp_path, monkeypatch):
+    """config.json's resolved options hold what the optimiser's options made of the given ones: a
+    custom optimiser whose options cap ``sigma`` writes 0.5 where 2.0 was given, and its run reads
+    back (the check compared the given value with the resolved one and refused the run)."""
+    from dataclasses import dataclass
+
+    from algorithms import REGISTRY
+    from algorithms.es import ESOptions
+
+    @dataclass(frozen=True)
+    class CappedOptions(ESOptions):
+        def __post_init__(self):
+            object.__setattr__(self, "sigma", min(self.sigma, 0.5))
+            super().__post_init__()
+
+    class Capped(REGISTRY["openai-es"]):
+        name = "capped-es"
+        Options = CappedOptions
+
+    monkeypatch.setitem(REGISTRY, "capped-es", Capped)
+    run = RunDir(tmp_path / "capped")
+    run.path.mkdir()
+    run.write_config(RunConfig(algo="capped-es", generations=3, algo_options={"sigma": 2.0}).validate(machine=False))
+    assert json.loads(run.config.read_text())["algo_options_resolved"]["sigma"] == 0.5
+    assert run.read_config().algo_options == {"sigma": 2.0}
+
+
 def test_a_whole_configuration_leaves_out_only_defaults(tmp_path):
     """A whole configuration (every field: a sweep's trial, a run taking over a first task) states
     its options and environment whole: a key the run stored and it leaves out is at its default,
