@@ -207,7 +207,7 @@ def spans(numbers: list[int]) -> str:
 
 def read_metrics(path: Path, required: tuple[str, ...] = ("task", *FIXED_COLUMNS)) -> list[dict[str, str]]:
     """Rows of a metrics.csv (or species.csv), checked against the contract: a header with the
-    ``required`` columns, as many cells in each row, integers in the integer columns and numbers
+    ``required`` columns, as many cells in each row, integers in the integer columns and finite numbers
     or nothing in the others but ``task``; RunDirError naming the file, line and column otherwise.
     A half-written last line (a killed run) is dropped."""
     try:
@@ -230,17 +230,18 @@ def read_metrics(path: Path, required: tuple[str, ...] = ("task", *FIXED_COLUMNS
         row = dict(zip(header, cells))
         for column, cell in row.items():
             if column != "task" and not _is_metric(cell, integer=column in INTEGER_COLUMNS):
-                kind = "an integer" if column in INTEGER_COLUMNS else "a number"
+                kind = "an integer" if column in INTEGER_COLUMNS else "a finite number"
                 raise RunDirError(f"{path} line {number}, column {column}: {cell!r} is not {kind}")
         rows.append(row)
     return rows
 
 
 def _is_metric(cell: str, integer: bool) -> bool:
+    """An integer column's digits, or a finite number or nothing (``format_value`` writes no NaN
+    and no run measures an infinity: ``nan``, ``inf`` are damage)."""
     if integer:
         return cell.isascii() and cell.isdigit()
     try:
-        float(cell or "nan")
+        return not cell or math.isfinite(float(cell))
     except ValueError:
         return False
-    return True

@@ -206,6 +206,8 @@ CASES = [
     ("summary.json a figure NaN", "neat",
      edit_json("summary.json", lambda s: s.update(current=[float("nan")] * len(s["current"]))),
      ["compare", "plot", "score"]),
+    ("metrics.csv best nan", "neat", edit_metrics(set_cell(2, "best", "nan")), ["plot", "compare"]),
+    ("metrics.csv mean inf", "es", edit_metrics(set_cell(1, "mean", "inf")), ["compare"]),
     ("summary.json held-out score infinite", "sep",
      edit_json("summary.json", lambda s: next(iter(s["held_out"]["scores"].values())).update(red=float("inf"))), ["compare"]),
     ("summary.json archive a string", "sep", edit_json("summary.json", lambda s: s["held_out"].update(archive="x")),

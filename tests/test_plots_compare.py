@@ -334,7 +334,7 @@ def test_a_broken_metrics_csv_is_named_by_file_line_and_column(tmp_path, capsys)
     (run / "summary.json").write_text(json.dumps({"phases": ["red"], "current": [1.5]}))
     header = "task,task_index,generation,generation_in_task,best\n"
     cases = [("red,0,0,0,1.5\n", "metrics.csv line 1 is not a metrics.csv header: it lacks the column(s) task, "),
-             (header + "red,0,0,0,1.5\nred,0,1,1,abc\n", "metrics.csv line 3, column best: 'abc' is not a number"),
+             (header + "red,0,0,0,1.5\nred,0,1,1,abc\n", "metrics.csv line 3, column best: 'abc' is not a finite number"),
              (header + "red,0,x,0,1.5\n", "metrics.csv line 2, column generation: 'x' is not an integer"),
              (header + "red,0,0,0\n", "metrics.csv line 2 has 4 cells for the header's 5 columns")]
     for verb in ("plot", "compare"):
