@@ -15,8 +15,9 @@ one ``error:`` line), never as an exception halfway through its work. Nothing he
   schedule that parses (its canonical spelling is the configuration's) and an arena the
   environment accepts; and, where written, the keys written beside the settings that are read:
   ``env_resolved`` and ``algo_options_resolved`` (objects of options, as ``env`` and
-  ``algo_options``, holding each option those give at the given value) and ``task_definitions`` (a definition of each task of the schedule, the one
-  config.json's ``tasks`` table gives where one defines it).
+  ``algo_options``, holding each option those give at the given value) and ``task_definitions``
+  (a definition of each task of the schedule, the one config.json's ``tasks`` table gives where
+  one defines it).
 - ``check_summary``: summary.json is an object whose ``phases`` are the first tasks of
   config.json's schedule, in order (``metrics.summarise`` writes one per ended phase), and whose
   figures, where present, are numbers (or null) where the readers expect them: the per-phase
