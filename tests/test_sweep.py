@@ -103,7 +103,8 @@ def test_second_invocation_skips_finished_trials(smoke_sweep, capsys):
     assert main(stated) == 0 and capsys.readouterr().out.count("skipped") == 4
     trial = build_grid(build_parser().parse_args([*stated[:-1], "n_agents=4"])).trials[0]
     state, why = trial_state(sweep_dir / trial.name, trial.config)
-    assert state == "failed" and "--env n_agents=4 (stored: 5)" in why
+    assert state == "failed" and "other settings than the sweep gives this trial: --env n_agents=4 (stored: 5)" in why
+    assert "--overwrite" in why and "drop those flags" not in why
 
 
 def test_an_unfinished_trial_resumes_with_the_settings_it_was_created_with(smoke_sweep, tmp_path, capsys):

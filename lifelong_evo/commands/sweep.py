@@ -244,9 +244,13 @@ def trial_state(path: Path, config: RunConfig) -> tuple[str, str]:
     if not run_dir.config.exists():
         return "new", ""
     try:
-        run_dir.continuation(config.to_dict())
+        differences = run_dir.setting_differences(config.to_dict())
     except (RunDirError, ConfigError) as error:
         return "failed", str(error)
+    if differences:  # the sweep's grid changed, or a default since the trial was made
+        return "failed", (f"{path} was made with other settings than the sweep gives this trial: "
+                          f"{'; '.join(differences)}: give the stored values in the sweep's settings, or run the "
+                          "trial again with --overwrite (and --only naming it)")
     return ("done", "") if is_complete(run_dir.read_summary(), config) else ("resume", "")
 
 
