@@ -1,19 +1,26 @@
 #!/bin/bash
-# The GPU checks of docs/performance.md ("Measuring them on a GPU") that fit one 10-minute call of a
-# lent GPU machine, most wanted first, each under a hard time limit, each result written to
-# $OUT/log.txt as it comes (what is under $OUT comes back even when the call is cut off).
+# The GPU checks of docs/performance.md ("Measuring them on a GPU"), as two calls of a lent GPU
+# machine that fit its 15 minutes together: the figures first, then the tests. Each step runs under
+# a hard time limit and its result goes to $OUT/log.txt as it comes (what is under $OUT comes back
+# even when the call is cut off); a failing test is reported the moment it fails.
 #
 #   bash benchmarks/gpu_checks.sh prepare   # here, with PyPI: the missing packages as wheels in .whl/
-#   bash benchmarks/gpu_checks.sh           # there, with .whl carried: the checks
+#   bash benchmarks/gpu_checks.sh figures   # there, with .whl carried: the benchmarks (about 7 min)
+#   bash benchmarks/gpu_checks.sh tests     # there, with .whl carried: tests/test_cuda.py (about 6.5 min)
 #
 # The GPU machine has Python 3.12 with torch, numpy, scipy, matplotlib and tqdm, and no network;
 # the project's other packages travel as wheels. Ray's wheel is over the size a call may carry, so
-# it travels without its Java jars, its servers and its libraries: `import ray` works, `ray.init`
-# does not, and none of these checks starts Ray (the sweeps of the list are left out).
+# it travels without its Java jars, its servers and its libraries: `import ray` works (EvoTorch
+# imports it), `ray.init` does not, and none of these checks starts Ray (the sweeps of the list are
+# left out). What travels is limited to 64 MiB: when the tracked files and .whl/ are over it, move
+# docs/data out of the checkout for the call (no check reads it) and back after it.
 set -u
 WHEELS=.whl
 
-if [ "${1:-}" = prepare ]; then
+part=${1:-}
+case "$part" in prepare|figures|tests) ;; *) echo "usage: bash $0 prepare|figures|tests" >&2; exit 2;; esac
+
+if [ "$part" = prepare ]; then
   exclude=$(git rev-parse --git-common-dir)/info/exclude
   mkdir -p "$WHEELS" "$(dirname "$exclude")" && { grep -qx "/$WHEELS/" "$exclude" 2>/dev/null || echo "/$WHEELS/" >> "$exclude"; }
   for package in neat-python==2.0.0 evotorch==0.6.1 gymnasium==1.4.0 pettingzoo==1.27.0 farama-notifications \
@@ -41,7 +48,10 @@ fi
 
 export PYTHONUNBUFFERED=1
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site "$WHEELS"/*.whl \
-  && python3 -m zipfile -e "$WHEELS/ray-import-only.zip" /tmp/site || { echo "setup failed"; exit 1; }
+  || { echo "setup failed"; exit 1; }
+# Ray is optional: none of the checks below starts it, and its zip is left behind when the working tree
+# with it would be over what a call may carry
+if [ -f "$WHEELS/ray-import-only.zip" ]; then python3 -m zipfile -e "$WHEELS/ray-import-only.zip" /tmp/site || exit 1; fi
 export PYTHONPATH=/tmp/site:$PWD
 LOG=$OUT/log.txt FULL=$OUT/full.txt
 { date -u; nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader
@@ -59,15 +69,22 @@ step() {
   tail -n 12 "$OUT/step.txt" | tee -a "$LOG"
   echo "### exit status $status" | tee -a "$LOG"
 }
-PYTEST="python3 -m pytest -n 0 -q -p no:cacheprovider -o addopts= -rfE --tb=short"
+PYTEST="python3 -m pytest -n 0 -q -p no:cacheprovider -o addopts= -rfE --tb=short -p benchmarks.report_failures_at_once"
 
-# the goals' figures first; then the tests; the compiled capture, which once hung, last
-step 50 python3 -m lifelong_evo.bench --device cuda --compile --also []
-step 65 python3 -m lifelong_evo.bench --device cuda --compile --algo neat
-step 65 python3 -m lifelong_evo.bench --device cuda --compile --algo openai-es
-step 140 $PYTEST tests/test_cuda.py -k "not cuda_graph"
-step 50 python3 -m lifelong_evo.bench --device cuda --also [] --cuda-graphs
-step 60 $PYTEST tests/test_cuda.py -k "cuda_graph and not compiled"
-step 60 python3 -m lifelong_evo.bench --device cuda --compile --also [] --cuda-graphs
-step 60 $PYTEST tests/test_cuda.py -k "cuda_graph and compiled"
+BENCH="python3 -m lifelong_evo.bench --device cuda"
+if [ "$part" = figures ]; then
+  # the environment eager and compiled, each with and without CUDA graphs, in one sitting; then the
+  # optimisers (each eager, then compiled). A cold compile takes most of a minute.
+  step 25 $BENCH --also []
+  step 25 $BENCH --also [] --cuda-graphs
+  step 80 $BENCH --compile --also []
+  step 80 $BENCH --compile --also [] --cuda-graphs
+  step 110 $BENCH --compile --algo neat
+  step 100 $BENCH --compile --algo openai-es
+else
+  # the compiled capture, which once hung, last
+  step 200 $PYTEST tests/test_cuda.py -k "not cuda_graph"
+  step 50 $PYTEST tests/test_cuda.py -k "cuda_graph and not compiled"
+  step 140 $PYTEST tests/test_cuda.py -k "cuda_graph and compiled"
+fi
 echo "### end $(date -u +%T)" | tee -a "$LOG"
