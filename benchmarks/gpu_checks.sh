@@ -48,10 +48,7 @@ fi
 
 export PYTHONUNBUFFERED=1
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site "$WHEELS"/*.whl \
-  || { echo "setup failed"; exit 1; }
-# Ray is optional: none of the checks below starts it, and its zip is left behind when the working tree
-# with it would be over what a call may carry
-if [ -f "$WHEELS/ray-import-only.zip" ]; then python3 -m zipfile -e "$WHEELS/ray-import-only.zip" /tmp/site || exit 1; fi
+  && python3 -m zipfile -e "$WHEELS/ray-import-only.zip" /tmp/site || { echo "setup failed"; exit 1; }
 export PYTHONPATH=/tmp/site:$PWD
 LOG=$OUT/log.txt FULL=$OUT/full.txt
 { date -u; nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader
