@@ -47,7 +47,7 @@ PY
 fi
 
 export PYTHONUNBUFFERED=1
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site "$WHEELS"/*.whl \
+python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site "$WHEELS"/*.whl \
   && python3 -m zipfile -e "$WHEELS/ray-import-only.zip" /tmp/site || { echo "setup failed"; exit 1; }
 export PYTHONPATH=/tmp/site:$PWD
 LOG=$OUT/log.txt FULL=$OUT/full.txt
