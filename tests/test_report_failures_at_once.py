@@ -8,9 +8,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SESSION = '''
-import os, signal
+import os, signal, sys
 
 def test_fails():
+    print("error: a line on", "stderr".upper(), file=sys.stderr)  # not in the traceback's source lines
     assert 6 * 7 == 41, "the answer is off"
 
 def test_then_the_session_is_killed():
@@ -31,3 +32,4 @@ def test_a_failure_is_reported_before_the_session_is_killed(tmp_path):
     assert "the answer is off" not in _output(tmp_path)  # without the plugin the kill loses it
     reported = _output(tmp_path, "-p", "benchmarks.report_failures_at_once")
     assert "FAILED test_session.py::test_fails (call)" in reported and "the answer is off" in reported
+    assert "error: a line on STDERR" in reported
