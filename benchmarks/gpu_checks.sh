@@ -1,12 +1,13 @@
 #!/bin/bash
-# The GPU checks of docs/performance.md ("Measuring them on a GPU"), as two calls of a lent GPU
-# machine that fit its 15 minutes together: the figures first, then the tests. Each step runs under
-# a hard time limit and its result goes to $OUT/log.txt as it comes (what is under $OUT comes back
-# even when the call is cut off); a failing test is reported the moment it fails.
+# The GPU checks of docs/performance.md ("Measuring them on a GPU"), as parts that each fit one
+# 10-minute call of a lent GPU machine (two of them fit its 15 minutes): the figures, the tests, and
+# the same-numbers check on that machine's CPU. Each step runs under a hard time limit and its
+# result goes to $OUT/log.txt as it comes (what is under $OUT comes back even when the call is cut
+# off); a failing test is reported the moment it fails.
 #
 #   bash benchmarks/gpu_checks.sh prepare   # here, with PyPI: the missing packages as wheels in .whl/
-#   bash benchmarks/gpu_checks.sh figures   # there, with .whl carried: the benchmarks (about 7 min)
-#   bash benchmarks/gpu_checks.sh tests     # there, with .whl carried: tests/test_cuda.py (about 6.5 min)
+#   bash benchmarks/gpu_checks.sh figures   # there, with .whl carried: the benchmarks (limits: 7 min)
+#   bash benchmarks/gpu_checks.sh tests     # there, with .whl carried: tests/test_cuda.py (limits: 6.5 min)
 #   bash benchmarks/gpu_checks.sh same-numbers  # there: the same-numbers tests on its CPU (an Intel Xeon
 #                                           # so far; issue #60 asks for a pass on Intel), under its torch
 #
