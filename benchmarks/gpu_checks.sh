@@ -83,7 +83,9 @@ if [ "$part" = figures ]; then
   step 110 $BENCH --compile --algo neat
   step 100 $BENCH --compile --algo openai-es
 elif [ "$part" = same-numbers ]; then
-  # on the CPU: the stored bytes under every speed setting, and the portable functions' own checks
+  # on the CPU: where sep-CMA-ES's update first differs from the stored trace (none: the same
+  # trace), then the stored bytes under every speed setting and the portable functions' checks
+  step 40 python3 -m benchmarks.trace_es_update --against tests/data/same-numbers/sep-cmaes-update-trace.txt
   step 300 $PYTEST tests/test_same_numbers_anywhere.py tests/test_numerics.py
 else
   # the compiled capture, which once hung, last

@@ -21,6 +21,8 @@ What is used instead, each from IEEE's correctly rounded operations only (``+ - 
   ``2**-WEIGHT_BITS``), summed in float64, where every product and every partial sum of up to
   ``CHUNK_TERMS`` terms is an exact integer: any summation order gives the same sum (longer sums
   add their chunks in a fixed order).
+- ``ordered_sum``: a sum of Python floats added left to right (Python 3.12's ``sum`` compensates
+  its roundings, so the same floats sum to other last bits on 3.11 and on 3.12).
 
 The module is shared by the arena and the built-in controllers (``algorithms``), and knows
 nothing of either. ``use("native")`` switches both to torch's own functions (faster, with numbers
@@ -30,7 +32,7 @@ plays its first episode (``RunConfig.numerics``).
 from __future__ import annotations
 
 import math
-from typing import Callable, Literal
+from typing import Callable, Iterable, Literal
 
 import torch
 
@@ -66,6 +68,22 @@ WEIGHT_LIMIT = 128.0
 CHUNK_TERMS = 2 ** 6
 """Terms summed exactly at once: every partial sum of 2**6 products is below 2**53, an integer
 float64 holds exactly. Longer sums add these chunks' sums one after the other."""
+
+
+def ordered_sum(values: Iterable[float]) -> float:
+    """The sum of ``values`` added left to right, each addition rounded: what Python 3.11's
+    ``sum`` computes, on every Python (the float sums that reach a run's numbers use it; this one
+    does not depend on the arithmetic mode, as the Python version is no speed setting)."""
+    total = 0
+    for value in values:
+        total = total + value
+    return total
+
+
+def ordered_mean(values: Iterable[float]) -> float:
+    """``ordered_sum(values) / len(values)``; ZeroDivisionError for no values."""
+    values = list(values)
+    return ordered_sum(values) / len(values)
 
 
 def sqrt(x: torch.Tensor) -> torch.Tensor:

@@ -18,7 +18,7 @@ from neat.innovation import InnovationTracker
 
 from algorithms.neat import NeatOptimizer
 from algorithms.neat.config import build_neat_config, neat_config_path
-from algorithms.neat.genetics import GENETICS, Neat092ConnectionGene, check_genetics
+from algorithms.neat.genetics import GENETICS, Neat092ConnectionGene, check_genetics, spawn_counts
 
 try:
     from neat092_reference import fitness, snapshot
@@ -171,6 +171,23 @@ def _fresh_genome(genetics: str, key: int = 1):
     genome = config.genome_type(key)
     genome.configure_new(gc)
     return genome, gc
+
+
+def test_spawn_counts_follow_neat_pythons_rule():
+    """``spawn_counts`` is neat-python's ``compute_spawn`` (the same counts on Python 3.11, where
+    both add the fitnesses left to right), over species that grow, shrink, stay and sit at the
+    minimum, and a population with no adjusted fitness at all."""
+    import neat
+
+    draw = random.Random(3)
+    cases = [([0.0, 0.0], [10, 20], 30, 2)]
+    for _ in range(300):
+        n = draw.randint(1, 8)
+        cases.append(([draw.choice([0.0, draw.random(), draw.random() / 7]) for _ in range(n)],
+                      [draw.randint(1, 60) for _ in range(n)], draw.randint(20, 300), draw.randint(1, 5)))
+    for case in cases:
+        assert spawn_counts(*case) == neat.DefaultReproduction.compute_spawn(*case), case
+    assert len({tuple(spawn_counts(*case)) for case in cases}) > 250  # the cases are not all alike
 
 
 def test_genetics_values():

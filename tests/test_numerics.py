@@ -73,7 +73,9 @@ print(hashlib.sha256(fitness.numpy().tobytes()).hexdigest(), float(fitness.abs()
 
 
 def _fitness(algo: str, capability: str, threads: int) -> tuple[str, float]:
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "ATEN_CPU_CAPABILITY": capability}
+    # the checkout first, then whatever the caller's path holds (where the packages may live)
+    path = os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])])
+    env = {**os.environ, "PYTHONPATH": path, "ATEN_CPU_CAPABILITY": capability}
     result = subprocess.run([sys.executable, "-c", FITNESS, algo, str(threads)], env=env, capture_output=True,
                             text=True, timeout=600, check=True)
     digest, total = result.stdout.split()

@@ -65,3 +65,30 @@ def test_full_cmaes_updates_alike_on_any_thread_count(tmp_path):
     for name, speed in (("one", ["--eval-threads", "1"]), ("two", ["--eval-threads", "2", "--threads", "2"])):
         assert main([*tiny, *speed, "--out", str(tmp_path), "--name", name]) == 0
     assert _written(tmp_path / "one") == _written(tmp_path / "two")
+
+
+def _compensated_sum(values, start=0):
+    """Python 3.12's ``sum``: floats added with Neumaier's compensation of each rounding."""
+    values = list(values)
+    if not any(isinstance(value, float) for value in values):
+        return _PLAIN_SUM(values, start)
+    total, compensation = float(start), 0.0
+    for value in values:
+        added = total + value
+        compensation += (total - added) + value if abs(total) >= abs(value) else (value - added) + total
+        total = added
+    return total + compensation
+
+
+_PLAIN_SUM = sum
+
+
+def test_neat_writes_the_same_bytes_on_python_3_12(tmp_path, monkeypatch):
+    """Python 3.12's ``sum`` compensates its roundings, so floats summed with it can end in other
+    bits than on 3.11. With ``sum`` made 3.12's, NEAT writes the stored bytes (its species means,
+    spawn counts, mean distances and diagnostics add in order: ``numerics.ordered_sum``)."""
+    monkeypatch.setattr("builtins.sum", _compensated_sum)
+    assert _compensated_sum([0.1] * 10) != _PLAIN_SUM([0.1] * 10)  # the stand-in differs from 3.11's
+    assert main(["--algo", "neat", "--reg", "11", *PAPER_SIZE, *SPEEDS["eager-1"], "--out", str(tmp_path),
+                 "--name", "run"]) == 0
+    assert _written(tmp_path / "run") == _written(STORED / "neat")

@@ -49,8 +49,8 @@ Shared by both versions and inherited unchanged: attribute initialisation and mu
 the draws a zero rate still makes), the order of mutations, node and connection deletion,
 initial connections (``partial_direct``), the genome distance (0.92's node distance has no
 time-constant term, which is exactly 0 in 2.0, where the time constant never changes), the spawn
-formula, elitism, the survival threshold, complete-extinction handling, and the configuration
-file (every option is given, so neither version's defaults matter).
+formula (``spawn_counts``), elitism, the survival threshold, complete-extinction handling, and
+the configuration file (every option is given, so neither version's defaults matter).
 
 Innovation numbers: 0.92 has none. These genomes still carry the numbers 2.0's tracker assigns
 (a child's connection takes the fitter parent's), which label genes in exports and checkpoints;
@@ -68,7 +68,7 @@ import neat
 from neat.genes import DefaultConnectionGene, DefaultNodeGene
 from neat.genome import DefaultGenomeConfig
 from neat.graphs import creates_cycle
-from neat.math_util import mean
+from envs import numerics
 
 from .speciation import SpeciesSet
 
@@ -127,6 +127,28 @@ def genetics_version(genetics: str) -> GeneticsVersion:
                            exact_population_size=True, crossover_by_innovation=True)
 
 
+def spawn_counts(adjusted_fitness: list[float], previous_sizes: list[int], pop_size: int,
+                 min_species_size: int) -> list[int]:
+    """neat-python's ``compute_spawn`` rule (0.92's and 2.0's): each species moves half way from
+    its previous size towards its share of ``pop_size`` by adjusted fitness (at least one genome
+    when it moves at all, and at least ``min_species_size``), then the counts are scaled to
+    ``pop_size`` and rounded. neat-python adds the fitnesses with Python's ``sum``, whose float
+    result differs between Python 3.11 and 3.12 (``numerics.ordered_sum``); here they are added
+    left to right, as 3.11 does."""
+    fitness_total = numerics.ordered_sum(adjusted_fitness)
+    counts = []
+    for fitness, size in zip(adjusted_fitness, previous_sizes):
+        share = max(min_species_size, fitness / fitness_total * pop_size) if fitness_total > 0 \
+            else min_species_size
+        half_way = (share - size) * 0.5
+        step = int(round(half_way))
+        if step == 0 and half_way != 0:
+            step = 1 if half_way > 0 else -1
+        counts.append(size + step)
+    scale = pop_size / sum(counts)  # integers: exact on every Python
+    return [max(min_species_size, int(round(count * scale))) for count in counts]
+
+
 # --------------------------------------------------------------------------------------------
 # neat-python 2.0's genetics: its own classes, with one fix
 
@@ -137,7 +159,11 @@ class Reproduction(neat.DefaultReproduction):
     species above the minimum size in one pass and then gives up. One large species next to one
     at the minimum is enough for it to raise "Internal error adjusting spawn counts" in the
     middle of a run (docs/algorithms.md, pitfalls). Here the passes go
-    on until the counts fit; wherever neat-python's own succeeds, the counts are the same."""
+    on until the counts fit; wherever neat-python's own succeeds, the counts are the same. The
+    spawn rule is ``spawn_counts``; the species' mean fitnesses before it are neat-python's own
+    (Python's ``sum``), so this genetics can evolve otherwise on Python 3.12 than on 3.11."""
+
+    compute_spawn = staticmethod(spawn_counts)
 
     def _adjust_spawn_exact(self, spawn_amounts, pop_size, min_species_size):
         excess = sum(spawn_amounts) - pop_size
@@ -264,6 +290,8 @@ class Neat092Stagnation(neat.DefaultStagnation):
 class Neat092Reproduction(neat.DefaultReproduction):
     """Reproduction without the exact population size and with a stable ranking of members."""
 
+    compute_spawn = staticmethod(spawn_counts)
+
     def reproduce(self, config, species, pop_size, generation):
         # innovation numbers as 2.0 assigns them (see the module docstring)
         config.genome_config.innovation_tracker = self.innovation_tracker
@@ -283,7 +311,8 @@ class Neat092Reproduction(neat.DefaultReproduction):
         lowest = min(fitnesses)
         fitness_range = max(1.0, max(fitnesses) - lowest)
         for s in remaining:
-            s.adjusted_fitness = (mean(m.fitness for m in s.members.values()) - lowest) / fitness_range
+            mean_fitness = numerics.ordered_mean(m.fitness for m in s.members.values())
+            s.adjusted_fitness = (mean_fitness - lowest) / fitness_range
 
         settings = self.reproduction_config
         spawn_amounts = self.compute_spawn([s.adjusted_fitness for s in remaining],

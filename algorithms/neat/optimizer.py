@@ -41,6 +41,8 @@ import torch
 from neat.export import export_network_json
 from neat.reporting import ReporterSet
 
+from envs import numerics
+
 from ..base import FUNCTIONAL, GenerationReport, Optimizer, OptimizerOptions
 from . import state as neat_state
 from .config import CONFIG_FILE, build_neat_config, minimum_population
@@ -250,7 +252,7 @@ class NeatOptimizer(Optimizer):
             return None
         if self._distances is None:
             refs = self.reference_genomes[-self.references:]
-            self._distances = torch.tensor([sum(self.distance(g, r) for r in refs) / len(refs)
+            self._distances = torch.tensor([numerics.ordered_mean(self.distance(g, r) for r in refs)
                                             for g in self.asked_genomes], dtype=torch.float64)
         return self._distances
 
@@ -309,7 +311,7 @@ class NeatOptimizer(Optimizer):
                     if g.connections else 0.0 for g in genomes]
         return {"distance_mean": math.nan if distances is None else distances.mean().item(),
                 "distance_std": math.nan if distances is None else distances.std(unbiased=False).item(),
-                "disabled_fraction": sum(disabled) / len(disabled)}
+                "disabled_fraction": numerics.ordered_mean(disabled)}
 
     def end_task(self) -> None:
         """The best genome of the task (by selection fitness) becomes a reference."""
