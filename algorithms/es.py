@@ -31,6 +31,7 @@ from evotorch.optimizers import ClipUp, TorchOptimizer
 
 from .base import FUNCTIONAL, GenerationReport, Optimizer, OptimizerOptions
 from .mlp import MLPPolicy, check_export, layer_sizes_for, n_parameters
+from .portable_update import portable_update
 from .regularizers import Importance, Reference, Regularizer
 
 STATE_FORMAT = 1
@@ -151,7 +152,7 @@ class ESOptimizer(Optimizer):
                                        reference=self.options.reference, importance=self.options.importance,
                                        device=self.device)
         centre_init = torch.zeros(self.n_parameters, dtype=torch.float32, device=self.device)
-        with _quiet_evotorch():
+        with _quiet_evotorch(), portable_update():
             self.problem = TellProblem(self.n_parameters, seed=self.seed, device=self.device)
             self.searcher = self._make_searcher(centre_init)
         self.centre_index = self.n_samples
@@ -204,7 +205,8 @@ class ESOptimizer(Optimizer):
     def ask(self) -> MLPPolicy:
         """The samples and, last, the centre; asking again before ``tell`` returns the same ones."""
         if not self._pending:
-            samples = self._sample()
+            with portable_update():
+                samples = self._sample()
             self._population = torch.cat([samples, self.centre.detach().unsqueeze(0)], dim=0)
             self._pending = True
         return MLPPolicy(self._population, self.layer_sizes)
@@ -213,7 +215,8 @@ class ESOptimizer(Optimizer):
         if self._population is None:
             raise RuntimeError("regularise() needs an asked population: call ask() first")
         self._check_fitness(fitness, "fitness")
-        return self.regularizer(fitness, self._population)
+        with portable_update():
+            return self.regularizer(fitness, self._population)
 
     def tell(self, fitness: torch.Tensor, selection_fitness: torch.Tensor) -> GenerationReport:
         if not self._pending:
@@ -223,17 +226,19 @@ class ESOptimizer(Optimizer):
         if not bool(torch.isfinite(selection_fitness).all()):
             raise ValueError("selection_fitness has non-finite values")
         sel = selection_fitness.detach().to(self.device, torch.float32)
-        self.regularizer.observe(self._population, sel)
-        distances = self.regularizer.distances(self._population)
-        extra = {"distance_mean": math.nan if distances is None else distances.mean().item(),
-                 "distance_std": math.nan if distances is None else distances.std(unbiased=False).item(),
-                 **self._update(sel[:self.n_samples])}
+        with portable_update():
+            self.regularizer.observe(self._population, sel)
+            distances = self.regularizer.distances(self._population)
+            extra = {"distance_mean": math.nan if distances is None else distances.mean().item(),
+                     "distance_std": math.nan if distances is None else distances.std(unbiased=False).item(),
+                     **self._update(sel[:self.n_samples])}
         self._pending = False
         self.generation += 1
         return GenerationReport(extra=extra)
 
     def end_task(self) -> None:
-        self.regularizer.end_task(self.centre, self.search_variance())
+        with portable_update():
+            self.regularizer.end_task(self.centre, self.search_variance())
 
     def adopt(self, exported: dict[str, Any]) -> None:
         """Move the search distribution's centre to the exported controller (``export``); its
