@@ -26,7 +26,8 @@ ROOT = Path(__file__).resolve().parents[1]
 BLOCK = re.compile(r"<!-- compare (?P<command>[^\n]*?) -->\n(?P<body>.*?)<!-- /compare -->", re.S)
 QUOTED = ["docs/data/paper-genetics", "docs/data/families", "docs/data/study/paper-claim",
           "docs/data/study/ms-lambda", "docs/data/study/neat-lambda-grid", "docs/data/study/families",
-          "docs/data/study/see-other-agents", "docs/data/study-nest-relocation"]
+          "docs/data/study/see-other-agents", "docs/data/study-nest-relocation",
+          "docs/data/regularisers-lambda"]
 """Data folders whose tables the docs must quote through a checked block (so that removing a
 block's marker cannot pass unnoticed)."""
 
