@@ -23,8 +23,9 @@ functions on Python floats:
 - ``topk``, ``sort`` and ``argsort``: stable, so equal values keep their index order;
 - ``lerp_``, ``addcmul_``, ``addcdiv_`` and ``add``/``sub`` with an ``alpha``: as separate
   multiplications and additions, never fused;
-- ``randn``/``normal_`` into float32: drawn in float64 and rounded (ATen draws float32 normals
-  with a vectorised formula on AVX2 and another without).
+- ``normal_`` into float32 (EvoTorch's sampling): drawn in float64 and rounded (ATen draws
+  float32 normals with a vectorised formula on AVX2 and another without; ``torch.randn`` is not
+  replaced, so ``strict_update`` refuses it).
 
 Any other function passes through unchanged: ``STRICT`` names the ones known to be exact
 elementwise operations or bookkeeping, and ``strict_update()`` (tests) refuses the rest, so a
@@ -170,14 +171,6 @@ def _normal_(x: T, mean: float = 0.0, std: float = 1.0, *, generator=None) -> T:
     return x.copy_(drawn)
 
 
-def _randn(*size, generator=None, dtype=None, device=None, out=None, **options) -> T:
-    if (dtype or torch.get_default_dtype()) != torch.float32 or out is not None or options.get("layout") is not None:
-        return torch.randn(*size, generator=generator, dtype=dtype, device=device, out=out, **options)
-    shape = size[0] if len(size) == 1 and isinstance(size[0], (tuple, list, torch.Size)) else size
-    drawn = torch.randn(*shape, generator=generator, dtype=torch.float64, device=device)
-    return drawn.to(torch.float32).requires_grad_(options.get("requires_grad", False))
-
-
 REPLACED: dict[Callable, Callable] = {
     torch.sum: _sum, T.sum: _sum, torch.mean: _mean, T.mean: _mean, torch.norm: _norm, T.norm: _norm,
     torch.std: _std, T.std: _std,
@@ -190,7 +183,7 @@ REPLACED: dict[Callable, Callable] = {
     torch.add: lambda *a, **k: _add(torch.add, *a, **k), T.add: lambda *a, **k: _add(T.add, *a, **k),
     T.add_: lambda *a, **k: _add(T.add_, *a, **k), torch.sub: lambda *a, **k: _add(torch.sub, *a, **k),
     T.sub: lambda *a, **k: _add(T.sub, *a, **k), T.sub_: lambda *a, **k: _add(T.sub_, *a, **k),
-    T.normal_: _normal_, torch.randn: _randn,
+    T.normal_: _normal_,
 }
 """The functions ``portable_update`` computes otherwise (module docstring)."""
 
