@@ -111,14 +111,8 @@ def _norm(x: T, p: Any = "fro", dim=None, keepdim: bool = False, out=None, dtype
 
 
 def _pow(x: T, exponent: Any) -> T:
-    if isinstance(exponent, torch.Tensor) or not isinstance(x, torch.Tensor):
-        base = x if isinstance(x, torch.Tensor) else torch.as_tensor(x, dtype=exponent.dtype, device=exponent.device)
-        power = exponent if isinstance(exponent, torch.Tensor) else torch.as_tensor(exponent, dtype=base.dtype)
-        base, power = torch.broadcast_tensors(base, power)
-        values = [math.pow(b, e) for b, e in zip(base.to(torch.float64).reshape(-1).tolist(),
-                                                  power.to(torch.float64).reshape(-1).tolist())]
-        return torch.tensor(values, dtype=torch.float64, device=base.device).reshape(base.shape).to(
-            torch.result_type(x, exponent))
+    if isinstance(exponent, torch.Tensor):
+        raise NotImplementedError("portable_update: pow with a tensor exponent")
     if exponent == 2:
         return x * x
     if exponent == 1:
@@ -177,7 +171,7 @@ REPLACED: dict[Callable, Callable] = {
     torch.exp: lambda x: _elementwise(x, math.exp), T.exp: lambda x: _elementwise(x, math.exp),
     torch.log: lambda x: _elementwise(x, _log), T.log: lambda x: _elementwise(x, _log),
     torch.sqrt: lambda x: numerics.sqrt(x), T.sqrt: lambda x: numerics.sqrt(x),
-    torch.pow: _pow, T.pow: _pow, T.__pow__: _pow, T.__rpow__: lambda x, base: _pow(base, x),
+    torch.pow: _pow, T.pow: _pow, T.__pow__: _pow,
     torch.topk: _topk, T.topk: _topk, torch.argsort: _argsort, T.argsort: _argsort, torch.sort: _sort,
     T.sort: _sort, T.lerp_: _lerp_, T.addcmul_: _addcmul_, T.addcdiv_: _addcdiv_,
     torch.add: lambda *a, **k: _add(torch.add, *a, **k), T.add: lambda *a, **k: _add(T.add, *a, **k),
