@@ -17,6 +17,7 @@ from lifelong_evo.commands.cli import main as cli_main
 from lifelong_evo.analysis.statistics import (
     paired_difference,
     paired_seeds_for_power,
+    position,
     sign_flip_p,
     t_interval,
     unpaired_seeds_for_power,
@@ -112,6 +113,18 @@ def test_no_statistic_depends_on_the_order_of_the_seeds():
     assert welch_difference([0.3, 0.2, 0.1], [0.6, 0.3]) == welch_difference([0.1, 0.2, 0.3], [0.3, 0.6])
 
 
+def test_a_position_is_the_ratio_of_the_mean_differences_on_the_seeds_both_have():
+    fine_tuning = {1: 1.0, 2: 1.0, 3: 1.0, 9: 0.0}
+    row = paired_difference({1: 3.0, 2: 5.0, 3: 1.0, 9: 100.0}, fine_tuning)  # 2, 4, 0 and seed 9's 100
+    scale = paired_difference({1: 5.0, 2: 9.0, 3: 2.0}, fine_tuning)  # 4, 8, 1: mean 13/3
+    assert position(row, scale) == (pytest.approx(2 / (13 / 3)), (1, 2, 3))
+    assert position(scale, scale) == (1.0, (1, 2, 3))
+    flat = paired_difference({1: 1.0, 2: 1.0, 3: 1.0}, fine_tuning)
+    assert position(row, flat) == (None, (1, 2, 3))  # rehearsal no different from fine-tuning: no scale
+    assert position(row, paired_difference({1: 4.0}, fine_tuning)) == (None, (1,))
+    assert position(welch_difference([3.0, 5.0], [1.0, 1.0]), scale) == (None, ())
+
+
 # ------------------------------------------------------------------------ compare on made-up runs
 
 PHASES = ["red", "green", "red"]
@@ -140,10 +153,11 @@ def summary(green_top: float, red_top: float, held: tuple[float, float] | None =
     return result
 
 
-def write_run(root: Path, name: str, seed, summary_json: dict, algo: str = "neat", reg: float = 0.0) -> Path:
+def write_run(root: Path, name: str, seed, summary_json: dict, algo: str = "neat", reg: float = 0.0,
+              **settings) -> Path:
     run = root / name
     run.mkdir(parents=True)
-    config = {"algo": algo, "reg": reg, "schedule": "red-green-red", "generations": 2, "seed": seed}
+    config = {"algo": algo, "reg": reg, "schedule": "red-green-red", "generations": 2, "seed": seed, **settings}
     (run / "config.json").write_text(json.dumps(config))
     (run / "summary.json").write_text(json.dumps(summary_json))
     return run
@@ -543,3 +557,34 @@ def test_sign_flip_p_is_scipys_exact_test(n):
                                         permutation_type="samples", vectorized=True, n_resamples=np.inf,
                                         alternative="two-sided")
         assert sign_flip_p(differences) == (float(scipys.pvalue), True), differences
+
+
+REHEARSAL_RED = {1: 2.0, 2: 3.0, 3: 4.0, 4: 5.0, 5: 6.0}
+"""Held-out red R_top of rehearsal minus lambda 0 per seed: mean 4, its interval above 0."""
+
+
+def test_compare_places_each_configuration_between_fine_tuning_and_rehearsal(lambdas, tmp_path):
+    """On red R_top held-out, lambda 11 gains [0, 0, 1, 2, 2] and rehearsal [2, 3, 4, 5, 6] over
+    lambda 0 on seeds 1-5: position 1 / 4; on the population's training R_pop, 3 and 4 at every
+    seed: 0.75. Rehearsal itself is the scale, not a row; a named baseline that is not fine-tuning
+    has no scale."""
+    for seed, gain in REHEARSAL_RED.items():
+        write_run(lambdas, f"rehearsal-seed{seed}", seed,
+                  summary(20.0, 9.0 + seed, held=(20.0, BASE_RED[seed] + gain)), rehearsal=0.3)
+    out, markdown = _compare(lambdas)
+    fine, reg11, rehearsal = "neat reg=0 red-green-red", "neat reg=11 red-green-red", \
+        "neat reg=0 red-green-red rehearsal=0.3"
+    lines = markdown.split("## Between fine-tuning and rehearsal")[1].split("\n## ")[0].splitlines()
+    rows = [line for line in lines if line.startswith(f"| {fine}") or line.startswith(f"| {reg11}")]
+    assert rows == [f"| {reg11} | {rehearsal} | red R_top | held-out | +1.00 [-0.24, +2.24] | "
+                    "+4.00 [+2.04, +5.96] | yes | 0.25 | 5 |",
+                    f"| {reg11} | {rehearsal} | red R_pop | training | +3.00 [+3.00, +3.00] | "
+                    "+4.00 [+4.00, +4.00] | yes | 0.75 | 5 |"]
+    placed = [r for r in read_csv(out / "comparison.csv") if r["statistic"] == "position"]
+    assert [(r["configuration"], r["baseline"], r["episodes"], r["metric"], float(r["mean"]), r["seeds"])
+            for r in placed if r["metric"] in ("R_top red at end of phase 1", "R_pop red at end of phase 1")] == [
+        (reg11, rehearsal, "held-out", "R_top red at end of phase 1", 0.25, "1 2 3 4 5"),
+        (reg11, rehearsal, "selection-time", "R_top red at end of phase 1", 0.75, "1 2 3 4 5"),  # not shown
+        (reg11, rehearsal, "training", "R_pop red at end of phase 1", 0.75, "1 2 3 4 5")]
+    _, against_reg11 = _compare(lambdas, "--baseline", "reg=11")
+    assert "## Between fine-tuning and rehearsal" not in against_reg11

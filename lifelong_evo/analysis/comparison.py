@@ -21,7 +21,10 @@ and ``figures.overlay_figures`` draws the figures, into a folder (``compare``'s 
                      share fewer than two seeds: difference, 95%
                      interval, p, effect size, seeds for 80% power, per outcome of the paper's
                      tables and per curve figure both have: stability gaps, forward transfer
-                     areas); then per configuration its tables in full: C per phase, R and F at
+                     areas); then, where rehearsal ran beside fine-tuning, each configuration
+                     compared with that fine-tuning placed between the two on the first task's
+                     retention (``placements``, ``statistics.position``); then per configuration
+                     its tables in full: C per phase, R and F at
                      each later task end, ACC/BWT/FWT, and where the runs have them the stability
                      gaps and forward transfer areas (below). Values are means over seeds with their
                      95% t-interval (one seed: the value alone); ``analysis.statistics`` has
@@ -94,7 +97,7 @@ from ..schedule import schedule_of
 from ..summary_json import SummaryLayout
 from .model_specific import (CRITERION, given_choices, held_out_selection_score, model_specific_label,
                              model_specific_report, select_model_specific)
-from .statistics import Difference, difference, holm, seed_order
+from .statistics import Difference, difference, holm, position, seed_order
 from .tables import (
     CONTROLLERS,
     FT_AREA,
@@ -370,6 +373,94 @@ def difference_rows(config: Configuration, baseline: Configuration, family: Holm
     return rows
 
 
+@dataclass(frozen=True)
+class Placed:
+    """A configuration's position between fine-tuning and rehearsal on one outcome (``placements``)."""
+
+    config: Configuration
+    rehearsal: Configuration
+    level: str
+    heading: str
+    key: Key
+    difference: Difference
+    """The configuration minus fine-tuning."""
+    scale: Difference
+    """Rehearsal minus fine-tuning."""
+    position: float | None
+    seeds: tuple[Any, ...]
+    """The seeds ``position`` is computed on: those all three configurations ran."""
+
+    @property
+    def established(self) -> bool:
+        """Whether rehearsal's 95% interval against fine-tuning excludes 0 (the baselines' rule)."""
+        return self.scale.low > 0 or self.scale.high < 0  # NaN (one pair) compares False
+
+
+def rehearsal_scales(configurations: list[Configuration], baselines: list[int | None]) -> dict[int, list[int]]:
+    """Fine-tuning's index -> the configurations compared with it that differ from it only in
+    rehearsal: each sets a scale from fine-tuning (0) to itself (1)."""
+    off = BASELINES_OFF["rehearsal"]
+    scales: dict[int, list[int]] = {}
+    for i, (c, b) in enumerate(zip(configurations, baselines)):
+        if b is None or c.config.get("rehearsal", off) == off:
+            continue
+        base = configurations[b].config
+        if config_key(base) == config_key({**base, **FINE_TUNING}) and \
+                config_key({**c.config, "rehearsal": off}) == config_key(base):
+            scales.setdefault(b, []).append(i)
+    return scales
+
+
+def placements(configurations: list[Configuration], baselines: list[int | None]) -> list[Placed]:
+    """Each configuration compared with fine-tuning, other than a scale's own rehearsal, placed on
+    every rehearsal scale of that fine-tuning (``rehearsal_scales``), on the first task's retention
+    at the end of the second (``R_<controller>``) of every controller and kind of episodes the
+    three have: ``statistics.position`` of their paired differences from fine-tuning."""
+    placed = []
+    for fine, scales in rehearsal_scales(configurations, baselines).items():
+        base = configurations[fine]
+        for r in scales:
+            theirs = {key: d for _, _, key, d in differences(configurations[r], base)}
+            for i, c in enumerate(configurations):
+                if baselines[i] != fine or i in scales:
+                    continue
+                for level, heading, key, d in differences(c, base):
+                    if level is not None and heading == f"{c.phases[0]} R_{level}" and key in theirs:
+                        value, seeds = position(d, theirs[key])
+                        placed.append(Placed(c, configurations[r], level, heading, key, d, theirs[key], value, seeds))
+    return placed
+
+
+def positions_section(placed: list[Placed], episodes: str) -> list[str]:
+    """The markdown of ``placements``: the controllers and kinds of episodes the tables show
+    (``shown_controllers``), and the population's (training)."""
+    rows = []
+    for p in placed:
+        shown = {("pop", TRAINING), *shown_controllers([p.config.found, p.rehearsal.found], episodes)}
+        if (p.level, p.key[0]) in shown:
+            value = "-" if p.position is None else f"{p.position:.2f}"
+            rows.append([p.config.label, p.rehearsal.label, p.heading, p.key[0], format_difference(p.difference)[0],
+                         format_difference(p.scale)[0], "yes" if p.established else "no", value, str(len(p.seeds))])
+    if not rows:
+        return []
+    return ["## Between fine-tuning and rehearsal", "",
+            "Where each configuration compared with fine-tuning stands on the first task's retention at the end "
+            "of the second (R), between fine-tuning (0) and rehearsal of otherwise the same settings (1): the mean "
+            "of its paired differences from fine-tuning over the mean of rehearsal's, on the seeds all three ran "
+            "(n seeds; each difference shown is over its own pairs). A point estimate, with no interval of its "
+            "own: the scale is established where rehearsal's 95% interval excludes 0, and a position on a scale "
+            "that is not says little.", "",
+            *table(["configuration", "rehearsal", "outcome", "episodes", "difference from fine-tuning [95% interval]",
+                    "rehearsal's difference [95% interval]", "scale established", "position", "n seeds"], rows), ""]
+
+
+def position_rows(placed: list[Placed]) -> list[dict[str, Any]]:
+    """comparison.csv's rows of ``placements``: every controller and kind of episodes."""
+    return [{**csv_head(p.config.label, p.config.config), "statistic": "position", "episodes": p.key[0],
+             "metric": p.key[1], "baseline": p.rehearsal.label, "n": len(p.seeds), "mean": p.position,
+             "seeds": p.seeds} for p in placed]
+
+
 def compare_table(paths, episodes: str = "held-out", baseline: dict[str, str] | None = None
                   ) -> tuple[list[dict[str, Any]], str]:
     """Rows (comparison.csv's: see CSV_COLUMNS; ``seeds`` and ``values`` are sequences) and the
@@ -528,7 +619,9 @@ def _table(runs: list[Run], episodes: str = "held-out", baseline: dict[str, str]
               "selected on) or training (the population's best; an ES centre).", "",
               *table(["configuration", "n seeds", *OVERVIEW], overview), "", *paper_tables(found, episodes), *against]
     _check_family(family, found, baselines)
-    return rows, "\n".join(header + sections)
+    placed = placements(found, baselines)
+    rows += position_rows(placed)
+    return rows, "\n".join(header + positions_section(placed, episodes) + sections)
 
 
 @dataclass

@@ -33,6 +33,11 @@ df = 2n - 2, delta = d sqrt(n / 2). The seeds needed is the smallest n >= 2 with
 ``math.inf`` where the effect is 0 (no number of seeds detects it) or needs more than
 ``MAX_SEEDS``, None where the effect size is undefined (fewer than two values, or no spread).
 
+**Position between fine-tuning and rehearsal** (``position``), where a baseline configuration
+(rehearsal) sets a scale: with d_i and r_i a configuration's and rehearsal's paired differences from
+fine-tuning on the seeds both were paired on, mean(d) / mean(r): 0 is fine-tuning, 1 rehearsal (the
+ratio of the seed means' differences from fine-tuning). A point estimate, without an interval.
+
 **Holm-Bonferroni** (``holm``), for a family of m outcomes tested together (a study's secondary
 outcomes): with the p-values sorted, p_(1) <= ... <= p_(m), the adjusted p_(i) is the largest of
 min(1, (m - j + 1) p_(j)) over j <= i; an outcome is detected at level alpha where its adjusted p
@@ -240,6 +245,23 @@ def difference(values: Mapping[Any, float], baseline: Mapping[Any, float], paira
     if pairable and len(set(values) & set(baseline)) >= 2:
         return paired_difference(values, baseline)
     return welch_difference(values.values(), baseline.values())
+
+
+def position(row: Difference, scale: Difference) -> tuple[float | None, tuple[Any, ...]]:
+    """Where ``row`` stands between fine-tuning (0) and ``scale``'s configuration (1), both paired
+    differences from fine-tuning on one outcome: mean(row's) / mean(scale's) over the seeds both
+    have, and those seeds (see the module docstring). None where either is not paired, fewer than
+    two seeds are shared, or the scale's mean difference on them is 0 (no scale)."""
+    if row.test != "paired" or scale.test != "paired":
+        return None, ()
+    mine, theirs = dict(zip(row.seeds, row.differences)), dict(zip(scale.seeds, scale.differences))
+    seeds = tuple(sorted(set(mine) & set(theirs), key=seed_order))
+    if len(seeds) < 2:
+        return None, seeds
+    across = float(np.mean(_sorted(theirs[s] for s in seeds)))
+    if across == 0:
+        return None, seeds
+    return float(np.mean(_sorted(mine[s] for s in seeds))) / across, seeds
 
 
 def holm(p_values: Iterable[float]) -> list[float]:
