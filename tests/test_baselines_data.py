@@ -18,6 +18,7 @@ import pytest
 
 from lifelong_evo.commands.cli import build_parser
 from lifelong_evo.commands.grid import build_grid
+from lifelong_evo.analysis.comparison import comparison
 from lifelong_evo.analysis.statistics import paired_difference
 from lifelong_evo.config import RunConfig
 from lifelong_evo.rundir import RunDir
@@ -192,3 +193,18 @@ def test_a_family_verdict_is_drawn_from_its_complete_data_by_the_rule(family):
         assert f"position {position:.2f}" in paragraph and "not established" not in paragraph
     else:
         assert "the scale is not established" in paragraph and "position " not in paragraph
+
+
+@pytest.mark.parametrize("family", sorted(VERDICTS))
+def test_compare_places_the_regulariser_where_the_verdict_does(family):
+    """``compare``'s section "Between fine-tuning and rehearsal" on the family's kept runs gives the
+    position the verdict rule computes from the seed means (the test above)."""
+    prefix, regulariser_row = VERDICTS[family]
+    fine_tune, regulariser, rehearsal = (_held_out_red_retention(f"{prefix}-{row}")
+                                         for row in ("reg0", regulariser_row, "rehearsal0.3"))
+    expected = paired_difference(regulariser, fine_tune).mean / paired_difference(rehearsal, fine_tune).mean
+    runs = [KEPT[name] for name in KEPT if name.rsplit("-seed", 1)[0] in
+            (f"{prefix}-reg0", f"{prefix}-{regulariser_row}", f"{prefix}-rehearsal0.3")]
+    (row,) = [r for r in comparison(runs).rows if r["statistic"] == "position" and r["episodes"] == "held-out"
+              and r["metric"] == "R_top red at end of phase 1"]
+    assert row["mean"] == pytest.approx(expected, rel=1e-12) and len(row["seeds"]) == len(SEEDS)
