@@ -327,6 +327,19 @@ def current_curve(rows: list[dict[str, str]], level: str = "pop") -> list[float 
                             else CURRENT_LEVELS[level], "")) for row in rows]
 
 
+def phase_start_scores(rows: list[dict[str, str]], level: str = "pop") -> dict[int, float]:
+    """Per phase k >= 1 in metrics.csv ``rows``, the current task's score (``current_curve``) in
+    the phase's first generation: what the population (pop: its best) or its top individual (top)
+    brings to the task before any selection on it, an archived controller put back included.
+    A phase whose first generation has no score of its own (a blend's) has none."""
+    starts: dict[int, float] = {}
+    for row, value in zip(rows, current_curve(rows, level)):
+        k = int(row["task_index"])
+        if k >= 1 and row["generation_in_task"] == "0" and value is not None:
+            starts[k] = value
+    return starts
+
+
 def _number(cell: str) -> float | None:
     return float(cell) if cell else None
 

@@ -21,7 +21,7 @@ and ``figures.overlay_figures`` draws the figures, into a folder (``compare``'s 
                      share fewer than two seeds: difference, 95%
                      interval, p, effect size, seeds for 80% power, per outcome of the paper's
                      tables and per curve figure both have: stability gaps, forward transfer
-                     areas); then, where rehearsal ran beside fine-tuning, each configuration
+                     areas, phase starts); then, where rehearsal ran beside fine-tuning, each configuration
                      compared with that fine-tuning placed between the two on the first task's
                      retention (``placements``, ``statistics.position``); then per configuration
                      its tables in full: C per phase, R and F at
@@ -90,7 +90,7 @@ from ..errors import UserError
 from algorithms import controller_size
 
 from ..json_files import write_json
-from ..metrics import controller_key, forward_transfer_area
+from ..metrics import controller_key, forward_transfer_area, phase_start_scores
 from ..rundir import RunDir
 from ..runs import BASELINES_OFF, Run, config_key, configuration_of, describe_config, group_runs, load_runs
 from ..schedule import schedule_of
@@ -103,9 +103,11 @@ from .tables import (
     FT_AREA,
     HELD_OUT,
     OVERVIEW,
+    PHASE_START,
     SELECTION_TIME,
     SIZE,
     STABILITY_GAP,
+    START_KINDS,
     TRAINING,
     TRAINING_KIND,
     Configuration,
@@ -125,6 +127,7 @@ from .tables import (
     shown_controllers,
     size_name,
     sorted_groups,
+    start_name,
     table,
     top_is_centre_name,
     write_csv,
@@ -531,6 +534,23 @@ def forward_transfer_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
     return figures
 
 
+def phase_start_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
+    """Per run, the current task's score in the first generation of each phase k >= 1
+    (``metrics.phase_start_scores``): ``start_pop phase <k> (<task>)`` (training) and
+    ``start_top ...`` (selection-time). Against fine-tuning it shows what a run brings back to a
+    task at once, as an archive run's put-back controller does when its task returns."""
+    figures: dict[Path, list[Figure]] = {}
+    for run in runs:
+        rows = run.metrics_rows()
+        phases = [phase.name for phase in schedule_of(run.config)]
+        found: list[Figure] = [(PHASE_START, (kind, start_name(level, k, phases[k])), value)
+                               for level, kind in START_KINDS.items()
+                               for k, value in phase_start_scores(rows, level).items()]
+        if found:
+            figures[run.path] = found
+    return figures
+
+
 def size_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
     """Per run, what its controllers are made of and what a generation costs, so that no difference
     between families is read as the optimiser's that belongs to the representation: for the top
@@ -568,8 +588,9 @@ def configurations(runs: list[Run]) -> list[Configuration]:
     # each group by seed (numerically), so nothing below depends on the order the runs came in
     groups = [sorted(g, key=lambda r: (seed_order(r.seed), str(r.path))) for g in sorted_groups(group_runs(runs))]
     configs = [g[0].config for g in groups]
-    transfer, sizes = forward_transfer_figures(runs), size_figures(runs)
-    extra = {path: [*transfer.get(path, []), *sizes.get(path, [])] for path in {*transfer, *sizes}}
+    transfer, starts, sizes = forward_transfer_figures(runs), phase_start_figures(runs), size_figures(runs)
+    extra = {path: [*transfer.get(path, []), *starts.get(path, []), *sizes.get(path, [])]
+             for path in {*transfer, *starts, *sizes}}
     return [Configuration(describe_config(config, configs), config, group,
                           [p.name for p in schedule_of(config)],
                           group_estimates(group, extra), seed_count(group))
@@ -579,7 +600,9 @@ def configurations(runs: list[Run]) -> list[Configuration]:
 CURVE_LEGEND = {STABILITY_GAP: "; gap: the stability gap (an earlier task's score at a switch minus its lowest "
                                "retention in the first generations after it)",
                 FT_AREA: "; FT_area: forward transfer, the mean over a phase of C minus C of a from-scratch run of "
-                         "the same seed"}
+                         "the same seed",
+                PHASE_START: "; start: the current task's score in a phase's first generation, before any selection "
+                             "on it"}
 """The header's words on each section of curve figures, where some configuration has it."""
 
 

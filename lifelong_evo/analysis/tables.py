@@ -9,14 +9,16 @@ for every run), ``selection-time`` (the top individual's score on the training e
 selected on) or ``training`` (the population's best, and an ES centre's, on the training
 episodes; no held-out counterpart).
 
-Curve figures. Besides the task-end figures, two are read off the per-generation curves
-(``CURVE_SECTIONS``; neither has a held-out counterpart, so every table shows them whatever
+Curve figures. Besides the task-end figures, three are read off the per-generation curves
+(``CURVE_SECTIONS``; none has a held-out counterpart, so every table shows them whatever
 ``--episodes`` says): the stability gap of summary.json's ``stability_gap`` block,
 ``gap_<level> <task> after switch to phase <k>`` (``gap_pop``: training, ``gap_top``:
 selection-time, ``gap_centre``: training), and the forward transfer area against a from-scratch
 run of the same seed, ``FT_area phase <k> (<task>)`` and their mean ``FT_area`` (training: the
-population's best), which ``compare`` computes from the runs' metrics.csv and passes in as
-``extra`` figures.
+population's best), and the phase start, the current task's score in the first generation of
+each phase k >= 1, ``start_<level> phase <k> (<task>)`` (``start_pop``: training, ``start_top``:
+selection-time); ``compare`` computes the last two from the runs' metrics.csv and passes them in
+as ``extra`` figures.
 """
 from __future__ import annotations
 
@@ -101,10 +103,10 @@ Figure = tuple[str, Key, float | None]
 """One run's figure: (its section, its key, its value)."""
 
 
-STABILITY_GAP, FT_AREA = "stability gap", "forward transfer area"
+STABILITY_GAP, FT_AREA, PHASE_START = "stability gap", "forward transfer area", "phase start"
 SIZE = "size"
 """The section of a run's controller sizes and evaluation budget (``compare.size_figures``)."""
-CURVE_SECTIONS = (STABILITY_GAP, FT_AREA)
+CURVE_SECTIONS = (STABILITY_GAP, FT_AREA, PHASE_START)
 """The sections of the figures read off per-generation curves (the module docstring)."""
 
 
@@ -121,6 +123,15 @@ def ft_area_name(phase: int | None = None, task: str | None = None) -> str:
     """The metric name of phase ``phase``'s forward transfer area, ``FT_area phase 1 (green)``, or
     of their mean over the phases, ``FT_area`` (no phase)."""
     return "FT_area" if phase is None else f"FT_area phase {phase} ({task})"
+
+
+START_KINDS = {"pop": TRAINING, "top": SELECTION_TIME}
+"""The episodes of each level's score in a phase's first generation (``metrics.phase_start_scores``)."""
+
+
+def start_name(level: str, phase: int, task: str) -> str:
+    """The metric name of phase ``phase``'s first-generation score: ``start_top phase 2 (red)``."""
+    return f"start_{level} phase {phase} ({task})"
 
 
 def run_metrics(summary: dict[str, Any]) -> list[Figure]:
@@ -307,6 +318,17 @@ def _curve_tables(found: Estimates) -> list[str]:
             rows.append(["mean over phases >= 1", cell(found, (TRAINING, ft_area_name()))])
         lines += ["Forward transfer area: mean over a phase's generations of C minus C of the from-scratch run "
                   "of the same seed.", "", *table(["phase", "FT_area (training)"], rows), ""]
+    prefix = "start_pop "
+    starts = [name[len(prefix):] for (_, name), (sec, _) in found.items()
+              if sec == PHASE_START and name.startswith(prefix)]
+    if starts:
+        columns = [(level, kind) for level, kind in START_KINDS.items()
+                   if present(found, [(kind, f"start_{level} {where}") for where in starts])]
+        lines += ["Phase start: the current task's score in the phase's first generation, before any selection "
+                  "on it.", "",
+                  *table(["phase", *(f"start_{level} ({kind})" for level, kind in columns)],
+                         [[where, *(cell(found, (kind, f"start_{level} {where}")) for level, kind in columns)]
+                          for where in starts]), ""]
     return lines
 
 
