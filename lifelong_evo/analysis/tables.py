@@ -296,21 +296,31 @@ def _size_table(found: Estimates) -> list[str]:
             "or a sample that scores exactly as it does) rather than a sample.", "", *table(["what", "value"], rows), ""]
 
 
-def _curve_tables(found: Estimates) -> list[str]:
-    """The stability gaps (a row per earlier task and switch, a column per level) and the forward
-    transfer areas (a row per phase, then their mean) of ``found``, where it has them."""
-    lines: list[str] = []
-    prefix = "gap_pop "  # every entry of the block has the population's gap
+def _levels_table(found: Estimates, section_name: str, stem: str, kinds: dict[str, str], row_heading: str,
+                  intro: str) -> list[str]:
+    """A table of ``found``'s figures of ``section_name`` named ``<stem>_<level> <where>``: a row
+    per ``where`` (those the population has), a column per level of ``kinds`` (level -> its
+    episodes) that has any; nothing where there are none."""
+    prefix = f"{stem}_pop "
     wheres = [name[len(prefix):] for (_, name), (sec, _) in found.items()
-              if sec == STABILITY_GAP and name.startswith(prefix)]
-    if wheres:
-        columns = [(level, kind) for level, kind in GAP_KINDS.items()
-                   if present(found, [(kind, f"gap_{level} {where}") for where in wheres])]
-        lines += ["Stability gap: an earlier task's score at the switch minus its lowest retention in the first "
-                  "generations after it (positive: a dip).", "",
-                  *table(["earlier task after the switch", *(f"gap_{level} ({kind})" for level, kind in columns)],
-                         [[where, *(cell(found, (kind, f"gap_{level} {where}")) for level, kind in columns)]
-                          for where in wheres]), ""]
+              if sec == section_name and name.startswith(prefix)]
+    if not wheres:
+        return []
+    columns = [(level, kind) for level, kind in kinds.items()
+               if present(found, [(kind, f"{stem}_{level} {where}") for where in wheres])]
+    return [intro, "", *table([row_heading, *(f"{stem}_{level} ({kind})" for level, kind in columns)],
+                              [[where, *(cell(found, (kind, f"{stem}_{level} {where}")) for level, kind in columns)]
+                               for where in wheres]), ""]
+
+
+def _curve_tables(found: Estimates) -> list[str]:
+    """The stability gaps (a row per earlier task and switch, a column per level), the forward
+    transfer areas (a row per phase, then their mean) and the phase starts (a row per phase, a
+    column per level) of ``found``, where it has them."""
+    # every entry of the stability gap block has the population's gap
+    lines = _levels_table(found, STABILITY_GAP, "gap", GAP_KINDS, "earlier task after the switch",
+                          "Stability gap: an earlier task's score at the switch minus its lowest retention in the "
+                          "first generations after it (positive: a dip).")
     phases = [name for (_, name), (sec, _) in found.items() if sec == FT_AREA and name != ft_area_name()]
     if phases:
         rows = [[name[len(ft_area_name()) + 1:], cell(found, (TRAINING, name))] for name in phases]
@@ -318,18 +328,9 @@ def _curve_tables(found: Estimates) -> list[str]:
             rows.append(["mean over phases >= 1", cell(found, (TRAINING, ft_area_name()))])
         lines += ["Forward transfer area: mean over a phase's generations of C minus C of the from-scratch run "
                   "of the same seed.", "", *table(["phase", "FT_area (training)"], rows), ""]
-    prefix = "start_pop "
-    starts = [name[len(prefix):] for (_, name), (sec, _) in found.items()
-              if sec == PHASE_START and name.startswith(prefix)]
-    if starts:
-        columns = [(level, kind) for level, kind in START_KINDS.items()
-                   if present(found, [(kind, f"start_{level} {where}") for where in starts])]
-        lines += ["Phase start: the current task's score in the phase's first generation, before any selection "
-                  "on it.", "",
-                  *table(["phase", *(f"start_{level} ({kind})" for level, kind in columns)],
-                         [[where, *(cell(found, (kind, f"start_{level} {where}")) for level, kind in columns)]
-                          for where in starts]), ""]
-    return lines
+    return lines + _levels_table(found, PHASE_START, "start", START_KINDS, "phase",
+                                 "Phase start: the current task's score in the phase's first generation, before "
+                                 "any selection on it.")
 
 
 def outcomes(phases: list[str], level: str) -> list[tuple[str, str]]:
