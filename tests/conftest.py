@@ -1,9 +1,24 @@
 """Checks that every test gets."""
 from __future__ import annotations
 
+import platform
+
 import pytest
 
 import envs.execution as execution
+
+
+def pytest_terminal_summary(terminalreporter):
+    """The machine the suite ran on, beside its result (``-q`` hides pytest's header): the
+    stored-bytes tests (``test_same_numbers_anywhere``) promise the same bytes on any x86-64 CPU,
+    and a pass counts for the kind of CPU it ran on (docs/usage.md, Reproducibility)."""
+    import torch
+
+    from lifelong_evo.provenance import machine
+
+    found = machine("cpu")
+    terminalreporter.write_line(f"machine: {found['cpu']}, {found['vector_isa']}, {found['cpus']} CPUs; "
+                                f"Python {platform.python_version()}, torch {torch.__version__}")
 
 
 @pytest.fixture(autouse=True)
