@@ -21,12 +21,12 @@ and ``figures.overlay_figures`` draws the figures, into a folder (``compare``'s 
                      share fewer than two seeds: difference, 95%
                      interval, p, effect size, seeds for 80% power, per outcome of the paper's
                      tables and per curve figure both have: stability gaps, forward transfer
-                     areas, phase starts); then, where rehearsal ran beside fine-tuning, each configuration
-                     compared with that fine-tuning placed between the two on the first task's
-                     retention (``placements``, ``statistics.position``); then per configuration
-                     its tables in full: C per phase, R and F at
-                     each later task end, ACC/BWT/FWT, and where the runs have them the stability
-                     gaps and forward transfer areas (below). Values are means over seeds with their
+                     areas, phase starts); then, where rehearsal ran beside fine-tuning, each
+                     configuration compared with that fine-tuning placed between the two on the
+                     first task's retention (``placements``, ``statistics.position``); then per
+                     configuration its tables in full: C per phase, R and F at each later task
+                     end, ACC/BWT/FWT, and where the runs have them the stability gaps, forward
+                     transfer areas and phase starts (below). Values are means over seeds with their
                      95% t-interval (one seed: the value alone); ``analysis.statistics`` has
                      the formulas.
 ``comparison.csv``   every figure the tables show and more: per configuration, metric and kind of
@@ -68,7 +68,8 @@ forward transfer area (``metrics.forward_transfer_area``) needs a from-scratch p
 run and has one gets ``FT_area phase <k> (<task>)`` for each phase k >= 1 that both have ended,
 and their mean ``FT_area`` once both have ended every phase, from the two metrics.csv files
 (with several partners of one seed, the mean of their areas). Its configuration shows the mean
-over the seeds that have a partner.
+over the seeds that have a partner. Every run with metrics.csv gets its phase starts,
+``start_pop`` and ``start_top phase <k> (<task>)`` (``metrics.phase_start_scores``).
 
 Model-specific lambda ("m.s. reg"): where a configuration ran several lambdas, the lambda per
 seed that ``analysis/model_specific.py`` chooses (on the training episodes, or with
