@@ -1,0 +1,66 @@
+"""What docs/studies/regularisers-and-archive.md says of step 2's data, checked on the runs kept in
+docs/data/regularisers-and-archive: each is its trial of examples/sweep_regularisers.toml, keeps
+what the held-out protocol needs, ran under the native arithmetic on the kind of CPU of its
+family and seed's reused baseline rows, and (the plan's check) repeats its fine-tune partner's
+training columns byte for byte up to where what it adds first acts: the first drift (generation
+199), or for an archive run red's return (generation 399)."""
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from lifelong_evo.commands.cli import build_parser
+from lifelong_evo.commands.grid import build_grid
+from lifelong_evo.rundir import RunDir
+from tests.run_data import assert_keeps_what_held_out_scoring_needs
+
+ROOT = Path(__file__).resolve().parents[1]
+KEPT = sorted(path for path in (ROOT / "docs/data/regularisers-and-archive").glob("*")
+              if (path / "metrics.csv").is_file())
+AMD_ZEN4 = {"cpu": "AMD EPYC (family 25, model 17)", "vector_isa": "AVX512"}
+INTEL = {"cpu": "Intel(R) Xeon(R) Processor (family 6, model 167)", "vector_isa": "AVX512"}
+ON_AMD_ZEN4 = {("neat", 17), ("neat", 24), ("neat", 31), ("sep-cmaes", 24), ("sep-cmaes", 42)}
+"""The families and seeds whose reused baseline rows were made on the AMD Zen 4 kind (the plan,
+"Arithmetic and machines"); every other one's on the Intel kind."""
+TRAINING_COLUMNS = ("task", "generation", "best", "mean", "median", "std", "top", "species", "disabled_fraction")
+"""metrics.csv's columns that the fine-tune run has too and that no regulariser writes."""
+
+
+def _trials() -> dict:
+    args = build_parser().parse_args(["sweep", "--config", str(ROOT / "examples/sweep_regularisers.toml")])
+    return {trial.name: trial for trial in build_grid(args).trials}
+
+
+TRIALS = _trials()
+
+
+def test_the_sweep_is_the_plans():
+    assert len(TRIALS) == 25 and {run.name for run in KEPT} <= TRIALS.keys()
+
+
+@pytest.mark.parametrize("run", KEPT, ids=lambda path: path.name)
+def test_a_kept_run_is_its_trial_on_its_kind_of_cpu(run):
+    assert RunDir(run).setting_differences(TRIALS[run.name].config.to_dict()) == []
+    assert_keeps_what_held_out_scoring_needs(run)
+    config, summary = (json.loads((run / name).read_text()) for name in ("config.json", "summary.json"))
+    planned = AMD_ZEN4 if (config["algo"], config["seed"]) in ON_AMD_ZEN4 else INTEL
+    assert config["numerics"] == summary["numerics"] == "native"
+    assert summary["machines"] and all({key: m[key] for key in planned} == planned for m in summary["machines"])
+
+
+def _columns(path: Path, last_generation: int) -> list[tuple[str, ...]]:
+    with open(path, newline="") as handle:
+        return [tuple(row.get(name, "") for name in TRAINING_COLUMNS) for row in csv.DictReader(handle)
+                if int(row["generation"]) <= last_generation]
+
+
+@pytest.mark.parametrize("run", KEPT, ids=lambda path: path.name)
+def test_a_kept_run_repeats_its_fine_tune_partner_until_what_it_adds_acts(run):
+    config = json.loads((run / "config.json").read_text())
+    partner = ROOT / "docs/data/baselines" / f"{config['algo']}-reg0-seed{config['seed']}"
+    last = 399 if config.get("archive") else 199
+    mine = _columns(run / "metrics.csv", last)
+    assert len(mine) == last + 1 and mine == _columns(partner / "metrics.csv", last)
