@@ -82,6 +82,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -503,19 +504,30 @@ def scratch_partners(runs: list[Run]) -> dict[Path, list[Run]]:
     return {path: found for path, found in partners.items() if found}
 
 
-def forward_transfer_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
-    """Per run with from-scratch partners (``scratch_partners``), its forward transfer areas as
-    figures: ``FT_area phase <k> (<task>)`` for each phase k >= 1 that the run and every partner
-    have ended (the mean over the partners), and ``FT_area``, their mean, once that is every phase
-    of the schedule. Reads the metrics.csv of those runs only."""
-    partners = scratch_partners(runs)
-    rows: dict[Path, list[dict[str, str]]] = {}  # a from-scratch run may partner several runs: read it once
+MetricsReader = Callable[[Run], list[dict[str, str]]]
+"""Reads a run's metrics.csv rows (``Run.metrics_rows``)."""
 
-    def metrics(run: Run) -> list[dict[str, str]]:
+
+def metrics_reader() -> MetricsReader:
+    """``Run.metrics_rows`` reading each run once: the curve and size figures all read the rows,
+    and a from-scratch run may partner several runs."""
+    rows: dict[Path, list[dict[str, str]]] = {}
+
+    def read(run: Run) -> list[dict[str, str]]:
         if run.path not in rows:
             rows[run.path] = run.metrics_rows()
         return rows[run.path]
 
+    return read
+
+
+def forward_transfer_figures(runs: list[Run], metrics: MetricsReader | None = None) -> dict[Path, list[Figure]]:
+    """Per run with from-scratch partners (``scratch_partners``), its forward transfer areas as
+    figures: ``FT_area phase <k> (<task>)`` for each phase k >= 1 that the run and every partner
+    have ended (the mean over the partners), and ``FT_area``, their mean, once that is every phase
+    of the schedule. Reads the metrics.csv of those runs only (with ``metrics``)."""
+    partners = scratch_partners(runs)
+    metrics = metrics or metrics_reader()
     figures: dict[Path, list[Figure]] = {}
     for run in runs:
         if run.path not in partners:
@@ -535,14 +547,14 @@ def forward_transfer_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
     return figures
 
 
-def phase_start_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
+def phase_start_figures(runs: list[Run], metrics: MetricsReader = Run.metrics_rows) -> dict[Path, list[Figure]]:
     """Per run, the current task's score in the first generation of each phase k >= 1
     (``metrics.phase_start_scores``): ``start_pop phase <k> (<task>)`` (training) and
     ``start_top ...`` (selection-time). Against fine-tuning it shows what a run brings back to a
     task at once, as an archive run's put-back controller does when its task returns."""
     figures: dict[Path, list[Figure]] = {}
     for run in runs:
-        rows = run.metrics_rows()
+        rows = metrics(run)
         phases = [phase.name for phase in schedule_of(run.config)]
         found: list[Figure] = [(PHASE_START, (kind, start_name(level, k, phases[k])), value)
                                for level, kind in START_KINDS.items()
@@ -552,7 +564,7 @@ def phase_start_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
     return figures
 
 
-def size_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
+def size_figures(runs: list[Run], metrics: MetricsReader = Run.metrics_rows) -> dict[Path, list[Figure]]:
     """Per run, what its controllers are made of and what a generation costs, so that no difference
     between families is read as the optimiser's that belongs to the representation: for the top
     controller exported at each task end, ``algorithms.controller_size`` (a NEAT genome's nodes and
@@ -564,7 +576,7 @@ def size_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
         found: list[Figure] = []
         controllers = RunDir(run.path).read_controllers()
         has_centre = SummaryLayout.CENTRE_CURRENT in run.summary
-        rows = run.metrics_rows() if has_centre else []  # none without metrics.csv
+        rows = metrics(run) if has_centre else []  # none without metrics.csv
         for i, task in enumerate(run.summary.get(SummaryLayout.PHASES, [])):
             exported = controllers.get(controller_key(i, task, "top"))
             if exported is not None:
@@ -584,12 +596,14 @@ def size_figures(runs: list[Run]) -> dict[Path, list[Figure]]:
 
 
 def configurations(runs: list[Run]) -> list[Configuration]:
-    """The runs' configurations, in table order, with their estimates (the forward transfer areas
-    included: ``forward_transfer_figures``)."""
+    """The runs' configurations, in table order, with their estimates (the forward transfer areas,
+    phase starts and sizes included, each run's metrics.csv read once)."""
     # each group by seed (numerically), so nothing below depends on the order the runs came in
     groups = [sorted(g, key=lambda r: (seed_order(r.seed), str(r.path))) for g in sorted_groups(group_runs(runs))]
     configs = [g[0].config for g in groups]
-    transfer, starts, sizes = forward_transfer_figures(runs), phase_start_figures(runs), size_figures(runs)
+    metrics = metrics_reader()
+    transfer = forward_transfer_figures(runs, metrics)
+    starts, sizes = phase_start_figures(runs, metrics), size_figures(runs, metrics)
     extra = {path: [*transfer.get(path, []), *starts.get(path, []), *sizes.get(path, [])]
              for path in {*transfer, *starts, *sizes}}
     return [Configuration(describe_config(config, configs), config, group,
