@@ -23,8 +23,11 @@ one ``error:`` line), never as an exception halfway through its work. Nothing he
   figures, where present, are numbers (or null) where the readers expect them: the per-phase
   lists, forgetting rows, R matrices, transfer metrics, stability gaps and the held-out block
   (with a skill archive's: each archived controller, one the block scores, and its score).
-- ``check_metrics``: each metrics.csv row's ``task_index`` lies within the schedule, its ``task``
-  is the schedule's task at that index, and generations strictly increase (each written once).
+- ``check_metrics``: metrics.csv has one row per generation from 0 on, in order, each in the
+  phase the schedule puts its generation in (``task_index``, ``task``, ``generation_in_task``),
+  and rows through the end of every phase summary.json records as ended.
+- ``check_controller_files``: controllers/ holds each ended phase's top controller and every
+  controller summary.json's held-out block scored (or, in a run kept without them, none).
 - ``check_controller``: an exported controller as ``algorithms.check_export`` sees it, taking the
   run's arena's observations as inputs.
 
@@ -34,6 +37,7 @@ here: reading a run needs only its files.
 from __future__ import annotations
 
 import json
+from bisect import bisect_right
 from collections.abc import Iterable
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -44,6 +48,7 @@ from envs import ConfigError, ForagingConfig
 
 from .config import DEFAULT_REGULARISER, RunConfig
 from .errors import RESTORE, RunDirError
+from .metrics import controller_key
 from .options import LISTED_BY, parse_table, parse_value, schema
 from .schedule import ScheduleError, canonical_schedule
 from .summary_json import SummaryLayout
@@ -331,26 +336,54 @@ def _row(row: Any, where: str, phase_key: tuple[str, range], schedule: list[str]
             _figure(value, f"{where}, {name!r}")
 
 
-def check_metrics(rows: list[dict[str, str]], path: Path, config: RunConfig) -> list[dict[str, str]]:
+def check_metrics(rows: list[dict[str, str]], path: Path, config: RunConfig, ended: int = 0) -> list[dict[str, str]]:
     """metrics.csv ``rows`` (``metrics_csv.read_metrics``'s, integer columns already checked), checked
-    against config.json's schedule: each row's ``task_index`` within it and its ``task`` the
-    schedule's task there, and each generation after the one before (a generation written twice,
-    or rows out of order, is another run's rows or a damaged file); RunDirError naming the line."""
-    schedule = [phase.name for phase in config.phases()]
-    previous = None
+    against config.json's schedule: one row per generation from generation 0 on, in order (a
+    generation written twice, missing or out of order is another run's rows or a damaged file),
+    each in the phase the schedule puts its generation in (``task_index``, ``task`` and
+    ``generation_in_task``), and rows through the last generation of the ``ended`` phases that
+    summary.json records (fewer: the file was cut short); RunDirError naming the line."""
+    phases = config.phases()
+    starts = [sum(phase.generations for phase in phases[:k]) for k in range(len(phases) + 1)]
     for line, row in enumerate(rows, start=2):
         index, generation = int(row["task_index"]), int(row["generation"])
-        if index >= len(schedule):
-            raise RunDirError(f"{path} line {line}, column task_index: {index} is beyond the {len(schedule)} phases "
-                              f"of config.json's schedule {config.schedule!r} (0 to {len(schedule) - 1}): {RESTORE}")
-        if row["task"] != schedule[index]:
-            raise RunDirError(f"{path} line {line}, column task: {row['task']!r}, where config.json's schedule "
-                              f"{config.schedule!r} has {schedule[index]!r} at phase {index}: {RESTORE}")
-        if previous is not None and generation <= previous:
-            raise RunDirError(f"{path} line {line}, column generation: {generation} after generation {previous} on "
-                              f"line {line - 1}: each generation is written once, in order: {RESTORE}")
-        previous = generation
+        expected = line - 2
+        if generation != expected:
+            said = f"after generation {expected - 1} on line {line - 1}" if expected else "on the first row"
+            raise RunDirError(f"{path} line {line}, column generation: {generation} {said}, where each generation "
+                              f"from 0 on has one row, in order: {RESTORE}")
+        if generation >= starts[-1]:
+            raise RunDirError(f"{path} line {line}, column generation: {generation} is beyond the {starts[-1]} "
+                              f"generations of config.json's schedule {config.schedule!r}: {RESTORE}")
+        phase = bisect_right(starts, generation) - 1
+        found = {"task_index": index, "task": row["task"], "generation_in_task": int(row["generation_in_task"])}
+        planned = {"task_index": phase, "task": phases[phase].name, "generation_in_task": generation - starts[phase]}
+        for column, value in found.items():
+            if value != planned[column]:
+                raise RunDirError(f"{path} line {line}, column {column}: {value!r}, where config.json's schedule "
+                                  f"{config.schedule!r} has {planned[column]!r} at generation {generation}: {RESTORE}")
+    if ended and len(rows) < starts[ended]:
+        last = f"ends at generation {len(rows) - 1}" if rows else "has no rows"
+        raise RunDirError(f"{path} {last}, where summary.json records {ended} phase(s) of the schedule "
+                          f"ended, the last at generation {starts[ended] - 1}: the file is cut short: {RESTORE}")
     return rows
+
+
+def check_controller_files(names: Iterable[str], summary: dict[str, Any], folder: Path) -> None:
+    """RunDirError unless controllers/ (``folder``, holding the file stems ``names``) holds the top
+    controller of every phase ``summary`` (summary.json, checked) records as ended and every
+    controller its held-out block scored: without one, ``score`` would write the block anew without
+    its scores, and ``compare`` and ``plot`` would leave out its figures, without a word. A run
+    kept without its controllers (none at all: summary.json holds its figures) passes."""
+    names = set(names)
+    if not names:
+        return
+    wanted = [controller_key(i, task, "top") for i, task in enumerate(summary.get(SummaryLayout.PHASES, []))]
+    scored = summary.get(SummaryLayout.HELD_OUT, {}).get(SummaryLayout.SCORES, {})
+    missing = [name for name in dict.fromkeys([*wanted, *scored]) if name not in names]
+    if missing:
+        raise RunDirError(f"{folder} lacks {', '.join(f'{name}.json' for name in missing)}, which summary.json "
+                          f"records (a task end's top controller, or one its held-out block scored): {RESTORE}")
 
 
 def check_controller(exported: Any, path: Path, config: RunConfig) -> dict[str, Any]:

@@ -22,8 +22,8 @@ from .config import RunConfig, default_regulariser
 from .errors import RunDirError
 from .json_files import read_json
 from .metrics_csv import METRICS_FILE, SPECIES_COLUMNS, SPECIES_FILE, read_metrics
-from .run_files import check_config, check_metrics, check_summary
-from .rundir import RESOLVED, RESOLVED_KEYS
+from .run_files import check_config, check_controller_files, check_metrics, check_summary
+from .rundir import RESOLVED, RESOLVED_KEYS, RunDir
 from .schedule import schedule_of
 from .summary_json import SUMMARY_FILE, SummaryLayout
 
@@ -56,12 +56,12 @@ class Run:
 
     def metrics_rows(self) -> list[dict[str, str]]:
         """metrics.csv's rows (none where the run has no metrics.csv), checked by ``read_metrics``
-        and against config.json's schedule (``run_files.check_metrics``)."""
+        and against config.json's schedule and summary.json's ended phases (``run_files.check_metrics``)."""
         path = self.path / METRICS_FILE
         if not path.exists():
             return []
         settings = check_config(self.config, self.path / "config.json", RESOLVED_KEYS)
-        return check_metrics(read_metrics(path), path, settings)
+        return check_metrics(read_metrics(path), path, settings, len(self.summary.get(SummaryLayout.PHASES, [])))
 
     def column(self, name: str) -> np.ndarray:
         """A metrics.csv column as floats over generations (NaN where empty or absent)."""
@@ -204,13 +204,15 @@ def find_run_dirs(paths) -> list[Path]:
 
 
 def load_run(path: Path, with_metrics: bool = True) -> Run:
-    """The run in ``path``, its files checked (``run_files``): config.json, summary.json against it
-    and, ``with_metrics``, metrics.csv against it. ``Run.config`` is config.json as written, its
+    """The run in ``path``, its files checked (``run_files``): config.json, summary.json against it,
+    the controllers it names present and, ``with_metrics``, metrics.csv against both. ``Run.config`` is config.json as written, its
     settings as their fields type them."""
     written = read_json(path / "config.json")
     settings = check_config(written, path / "config.json", RESOLVED_KEYS)
     config = {**written, **{key: getattr(settings, key) for key in written if key not in RESOLVED_KEYS}}
     summary = check_summary(read_json(path / SUMMARY_FILE), path / SUMMARY_FILE, settings)
+    controllers = RunDir(path).controllers
+    check_controller_files((file.stem for file in controllers.glob("*.json")), summary, controllers)
     run = Run(path=path, config=config, summary=summary)
     if with_metrics:
         run.metrics = run.metrics_rows()

@@ -93,6 +93,12 @@ def truncate(name: str, keep: float = 0.5):
     return damage
 
 
+def remove(name: str):
+    def damage(run: Path) -> None:
+        (run / name).unlink()
+    return damage
+
+
 def edit_metrics(change):
     """A damage: ``change(lines)`` on metrics.csv's lines (header first)."""
     def damage(run: Path) -> None:
@@ -221,6 +227,19 @@ CASES = [
      edit_json("summary.json", lambda s: s["held_out"]["archive"]["red"].update(score="x")), ["compare"]),
     ("summary.json archive_mean a list", "wp", edit_json("summary.json", lambda s: s["held_out"].update(archive_mean=[])),
      ["score"]),
+    # metrics.csv rows read as they stood: a curve with a hole, another phase's row, a phase start missing
+    ("metrics.csv a generation missing", "neat", edit_metrics(lambda lines: [*lines[:2], *lines[3:]]),
+     ["plot", "compare"]),
+    ("metrics.csv generation_in_task not the schedule's", "es", edit_metrics(set_cell(2, "generation_in_task", "0")),
+     ["compare"]),
+    ("metrics.csv cut short of summary.json's ended phases", "sep", edit_metrics(lambda lines: lines[:3]),
+     ["plot", "compare"]),
+    # a controller summary.json names missing: score wrote the held-out block anew without its
+    # scores (no phases, no figures), compare and plot left its figures out
+    ("controllers/ lacks a task end's top controller", "neat", remove("controllers/task0-red-top.json"),
+     ["score", "compare", "plot"]),
+    ("controllers/ lacks a controller the held-out block scored", "es", remove("controllers/initial-centre.json"),
+     ["score", "compare"]),
 ]
 REFUSALS = [pytest.param(kind, damage, verb, id=f"{name}-{verb}") for name, kind, damage, verbs in CASES
             for verb in verbs]

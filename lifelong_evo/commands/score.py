@@ -31,6 +31,7 @@ from ..held_out import score_controllers
 from ..json_files import read_json
 from ..metrics import held_out_summary, parse_controller_key
 from ..options import parse_value, plain
+from ..run_files import check_controller_files
 from ..rundir import RunDir
 from ..runs import find_run_dirs
 from ..schedule import distinct_tasks
@@ -116,9 +117,10 @@ def main(args: argparse.Namespace) -> int:
         else:
             runs += [RunDir(path) for path in find_run_dirs([given])]
     for run_dir in runs:  # every run readable before any is scored or rewritten
-        run_dir.checked_summary()  # its figures are kept beside the new block: one that cannot be read is refused
-        _check_controllers({run_dir.controllers / f"{name}.json": exported
-                            for name, exported in run_dir.read_controllers().items()})
+        summary = run_dir.checked_summary()  # its figures are kept beside the new block: one unreadable is refused
+        controllers = run_dir.read_controllers()
+        check_controller_files(controllers, summary or {}, run_dir.controllers)  # none of its scores dropped
+        _check_controllers({run_dir.controllers / f"{name}.json": exported for name, exported in controllers.items()})
     for path, exported, config in files:
         _check_controllers({path: exported})
         try:
