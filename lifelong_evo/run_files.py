@@ -25,7 +25,8 @@ one ``error:`` line), never as an exception halfway through its work. Nothing he
   (with a skill archive's: each archived controller, one the block scores, and its score).
 - ``check_metrics``: metrics.csv has one row per generation from 0 on, in order, each in the
   phase the schedule puts its generation in (``task_index``, ``task``, ``generation_in_task``),
-  and rows through the end of every phase summary.json records as ended.
+  and rows through the end of every phase summary.json records as ended; ``check_species`` the
+  same of species.csv's generations.
 - ``check_controller_files``: controllers/ holds each ended phase's top controller and every
   controller summary.json's held-out block scored (or, in a run kept without them, none).
 - ``check_controller``: an exported controller as ``algorithms.check_export`` sees it, taking the
@@ -344,7 +345,7 @@ def check_metrics(rows: list[dict[str, str]], path: Path, config: RunConfig, end
     ``generation_in_task``), and rows through the last generation of the ``ended`` phases that
     summary.json records (fewer: the file was cut short); RunDirError naming the line."""
     phases = config.phases()
-    starts = [sum(phase.generations for phase in phases[:k]) for k in range(len(phases) + 1)]
+    starts = _phase_starts(config)
     for line, row in enumerate(rows, start=2):
         index, generation = int(row["task_index"]), int(row["generation"])
         expected = line - 2
@@ -362,11 +363,41 @@ def check_metrics(rows: list[dict[str, str]], path: Path, config: RunConfig, end
             if value != planned[column]:
                 raise RunDirError(f"{path} line {line}, column {column}: {value!r}, where config.json's schedule "
                                   f"{config.schedule!r} has {planned[column]!r} at generation {generation}: {RESTORE}")
-    if ended and len(rows) < starts[ended]:
-        last = f"ends at generation {len(rows) - 1}" if rows else "has no rows"
+    _check_through_ended(len(rows), path, starts, ended)
+    return rows
+
+
+def check_species(rows: list[dict[str, str]], path: Path, config: RunConfig, ended: int = 0) -> list[dict[str, str]]:
+    """species.csv ``rows`` (``read_metrics``'s), checked as metrics.csv's are: the rows of each
+    generation from 0 on together and in order (every generation has a species), within the
+    schedule's generations and through the last generation of the ``ended`` phases."""
+    starts = _phase_starts(config)
+    generations = 0
+    for line, row in enumerate(rows, start=2):
+        generation = int(row["generation"])
+        if generation not in (generations - 1, generations) or generation >= starts[-1]:
+            said = f"after generation {generations - 1} on line {line - 1}" if generations else "on the first row"
+            raise RunDirError(f"{path} line {line}, column generation: {generation} {said}, where each of the "
+                              f"{starts[-1]} generations of config.json's schedule from 0 on has its rows, in order: "
+                              f"{RESTORE}")
+        generations = generation + 1
+    _check_through_ended(generations, path, starts, ended)
+    return rows
+
+
+def _phase_starts(config: RunConfig) -> list[int]:
+    """The first generation of each phase of ``config``'s schedule, then the schedule's length."""
+    phases = config.phases()
+    return [sum(phase.generations for phase in phases[:k]) for k in range(len(phases) + 1)]
+
+
+def _check_through_ended(generations: int, path: Path, starts: list[int], ended: int) -> None:
+    """RunDirError unless the file ``path``, holding rows of ``generations`` generations from 0 on,
+    reaches the end of the ``ended`` phases summary.json records (phase k starts at ``starts[k]``)."""
+    if ended and generations < starts[ended]:
+        last = f"ends at generation {generations - 1}" if generations else "has no rows"
         raise RunDirError(f"{path} {last}, where summary.json records {ended} phase(s) of the schedule "
                           f"ended, the last at generation {starts[ended] - 1}: the file is cut short: {RESTORE}")
-    return rows
 
 
 def check_controller_files(names: Iterable[str], summary: dict[str, Any], folder: Path) -> None:

@@ -22,7 +22,7 @@ from .config import RunConfig, default_regulariser
 from .errors import RunDirError
 from .json_files import read_json
 from .metrics_csv import METRICS_FILE, SPECIES_COLUMNS, SPECIES_FILE, read_metrics
-from .run_files import check_config, check_controller_files, check_metrics, check_summary
+from .run_files import check_config, check_controller_files, check_metrics, check_species, check_summary
 from .rundir import RESOLVED, RESOLVED_KEYS, RunDir
 from .schedule import schedule_of
 from .summary_json import SUMMARY_FILE, SummaryLayout
@@ -60,8 +60,13 @@ class Run:
         path = self.path / METRICS_FILE
         if not path.exists():
             return []
+        return check_metrics(read_metrics(path), path, *self._logged_against())
+
+    def _logged_against(self) -> tuple[RunConfig, int]:
+        """What a log of the run is checked against: config.json's settings, and how many phases
+        summary.json records as ended."""
         settings = check_config(self.config, self.path / "config.json", RESOLVED_KEYS)
-        return check_metrics(read_metrics(path), path, settings, len(self.summary.get(SummaryLayout.PHASES, [])))
+        return settings, len(self.summary.get(SummaryLayout.PHASES, []))
 
     def column(self, name: str) -> np.ndarray:
         """A metrics.csv column as floats over generations (NaN where empty or absent)."""
@@ -82,8 +87,8 @@ class Run:
         if not path.exists():
             return None
         # checked as metrics.csv is: a broken line is an error naming it, a half-written last one dropped
-        return [(int(row["generation"]), int(row["species_id"]), int(row["size"]))
-                for row in read_metrics(path, required=SPECIES_COLUMNS)]
+        rows = check_species(read_metrics(path, required=SPECIES_COLUMNS), path, *self._logged_against())
+        return [(int(row["generation"]), int(row["species_id"]), int(row["size"])) for row in rows]
 
 
 def _float(text: str) -> float:
@@ -205,8 +210,8 @@ def find_run_dirs(paths) -> list[Path]:
 
 def load_run(path: Path, with_metrics: bool = True) -> Run:
     """The run in ``path``, its files checked (``run_files``): config.json, summary.json against it,
-    the controllers it names present and, ``with_metrics``, metrics.csv against both. ``Run.config`` is config.json as written, its
-    settings as their fields type them."""
+    the controllers it names present and, ``with_metrics``, metrics.csv against both. ``Run.config``
+    is config.json as written, its settings as their fields type them."""
     written = read_json(path / "config.json")
     settings = check_config(written, path / "config.json", RESOLVED_KEYS)
     config = {**written, **{key: getattr(settings, key) for key in written if key not in RESOLVED_KEYS}}

@@ -99,12 +99,20 @@ def remove(name: str):
     return damage
 
 
-def edit_metrics(change):
-    """A damage: ``change(lines)`` on metrics.csv's lines (header first)."""
+def edit_lines(name: str, change):
+    """A damage: ``change(lines)`` on the lines of the CSV file ``name`` (header first)."""
     def damage(run: Path) -> None:
-        path = run / "metrics.csv"
+        path = run / name
         path.write_text("\n".join(change(path.read_text().splitlines())) + "\n")
     return damage
+
+
+def edit_metrics(change):
+    return edit_lines("metrics.csv", change)
+
+
+def edit_species(change):
+    return edit_lines("species.csv", change)
 
 
 def set_cell(line: int, column: str, value: str):
@@ -234,6 +242,8 @@ CASES = [
      ["compare"]),
     ("metrics.csv cut short of summary.json's ended phases", "sep", edit_metrics(lambda lines: lines[:3]),
      ["plot", "compare"]),
+    ("species.csv cut short of summary.json's ended phases", "wp", truncate("species.csv", 0.3), ["plot"]),
+    ("species.csv a generation missing", "neat", edit_species(lambda lines: [lines[0], *lines[2:]]), ["plot"]),
     # a controller summary.json names missing: score wrote the held-out block anew without its
     # scores (no phases, no figures), compare and plot left its figures out
     ("controllers/ lacks a task end's top controller", "neat", remove("controllers/task0-red-top.json"),
