@@ -9,8 +9,8 @@ and ``--resume`` and ``--start-from`` where a run reads another) must then exit 
 traceback, give exactly one ``error:`` line on a refusal, and leave every file it does not own
 byte for byte (a verb that only reads, on a refusal: every file). One test per case the issue
 names (a traceback, or a damage accepted silently, before), then a property test whose damages
-hypothesis draws: truncation, JSON values of the wrong type, numbers out of range, unknown task
-names, duplicated rows and controllers of the wrong shape."""
+hypothesis draws: truncation, a file removed, JSON values of the wrong type, numbers out of range,
+unknown task names, duplicated or dropped rows and controllers of the wrong shape."""
 from __future__ import annotations
 
 import json
@@ -394,17 +394,21 @@ FILES = ["config.json", "summary.json", "metrics.csv", FINAL, "controllers/task0
 def damages(draw):
     """(a description, a damage) to one file of a run."""
     name = draw(st.sampled_from(FILES))
-    how = draw(st.sampled_from(["truncate", "wrong value", "out of range", "unknown task", "duplicate row",
-                                "controller shape", "held-out block", "task field"]))
+    how = draw(st.sampled_from(["truncate", "remove", "wrong value", "out of range", "unknown task", "duplicate row",
+                                "drop row", "controller shape", "held-out block", "task field"]))
+    if how == "remove":
+        return f"{name} removed", remove(name)
     if how == "truncate":
         keep = draw(st.floats(0, 0.99))
         return f"{name} cut to {keep:.2f}", truncate(name, keep)
-    if name == "metrics.csv" or how == "duplicate row":
+    if name == "metrics.csv" or how in ("duplicate row", "drop row"):
         line = draw(st.integers(1, 6))
         column = draw(st.sampled_from(["task", "task_index", "generation", "generation_in_task", "best"]))
         value = draw(st.sampled_from(["purple", "blue", "7", "-1", "", "1e400", "0"]))
         if how == "duplicate row":
             return f"metrics.csv line {line} twice", edit_metrics(lambda lines: [*lines[:line + 1], *lines[line:]])
+        if how == "drop row":
+            return f"metrics.csv line {line} dropped", edit_metrics(lambda lines: [*lines[:line], *lines[line + 1:]])
         return f"metrics.csv line {line} {column}={value!r}", edit_metrics(set_cell(line, column, value))
     if name.startswith("controllers/"):
         key = draw(st.sampled_from(["layer_sizes", "parameters", "num_inputs", "num_outputs", "genome", "format",
