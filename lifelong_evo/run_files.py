@@ -25,8 +25,8 @@ one ``error:`` line), never as an exception halfway through its work. Nothing he
   (with a skill archive's: each archived controller, one the block scores, and its score).
 - ``check_metrics``: metrics.csv has one row per generation from 0 on, in order, each in the
   phase the schedule puts its generation in (``task_index``, ``task``, ``generation_in_task``),
-  and rows through the end of every phase summary.json records as ended; ``check_species`` the
-  same of species.csv's generations.
+  and rows through the end of every phase summary.json records as ended; ``check_species``
+  species.csv's generations in order, through the same end.
 - ``check_controller_files``: controllers/ holds each ended phase's top controller and every
   controller summary.json's held-out block scored (or, in a run kept without them, none).
 - ``check_controller``: an exported controller as ``algorithms.check_export`` sees it, taking the
@@ -368,18 +368,18 @@ def check_metrics(rows: list[dict[str, str]], path: Path, config: RunConfig, end
 
 
 def check_species(rows: list[dict[str, str]], path: Path, config: RunConfig, ended: int = 0) -> list[dict[str, str]]:
-    """species.csv ``rows`` (``read_metrics``'s), checked as metrics.csv's are: the rows of each
-    generation from 0 on together and in order (every generation has a species), within the
-    schedule's generations and through the last generation of the ``ended`` phases."""
+    """species.csv ``rows`` (``read_metrics``'s), checked as metrics.csv's are where an optimiser
+    that reports no species in some generation allows: each generation's rows together and in
+    order, within the schedule's generations, and rows through the last generation of the
+    ``ended`` phases."""
     starts = _phase_starts(config)
     generations = 0
     for line, row in enumerate(rows, start=2):
         generation = int(row["generation"])
-        if generation not in (generations - 1, generations) or generation >= starts[-1]:
-            said = f"after generation {generations - 1} on line {line - 1}" if generations else "on the first row"
-            raise RunDirError(f"{path} line {line}, column generation: {generation} {said}, where each of the "
-                              f"{starts[-1]} generations of config.json's schedule from 0 on has its rows, in order: "
-                              f"{RESTORE}")
+        if generation < generations - 1 or generation >= starts[-1]:
+            raise RunDirError(f"{path} line {line}, column generation: {generation} after generation "
+                              f"{generations - 1} on line {line - 1}, where the rows of each of the {starts[-1]} "
+                              f"generations of config.json's schedule follow those of the one before: {RESTORE}")
         generations = generation + 1
     _check_through_ended(generations, path, starts, ended)
     return rows

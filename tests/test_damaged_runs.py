@@ -243,7 +243,8 @@ CASES = [
     ("metrics.csv cut short of summary.json's ended phases", "sep", edit_metrics(lambda lines: lines[:3]),
      ["plot", "compare"]),
     ("species.csv cut short of summary.json's ended phases", "wp", truncate("species.csv", 0.3), ["plot"]),
-    ("species.csv a generation missing", "neat", edit_species(lambda lines: [lines[0], *lines[2:]]), ["plot"]),
+    ("species.csv rows out of order", "neat", edit_species(lambda lines: [lines[0], lines[2], lines[1], *lines[3:]]),
+     ["plot"]),
     # a controller summary.json names missing: score wrote the held-out block anew without its
     # scores (no phases, no figures), compare and plot left its figures out
     ("controllers/ lacks a task end's top controller", "neat", remove("controllers/task0-red-top.json"),
