@@ -67,6 +67,28 @@ def test_full_cmaes_updates_alike_on_any_thread_count(tmp_path):
     assert _written(tmp_path / "one") == _written(tmp_path / "two")
 
 
+@pytest.mark.parametrize("algo,settings", [
+    ("sep-cmaes", ["--regulariser", "functional", "--reg", "5"]),
+    ("neat", ["--regulariser", "functional", "--reg", "2"]),
+    ("neat", ["--regulariser", "wp", "--reg", "0.4", "--archive"]),
+], ids=["sep-cmaes-functional", "neat-functional", "neat-wp-archive"])
+def test_the_newer_regularisers_and_the_archive_write_the_same_bytes_under_every_speed_setting(
+        tmp_path, algo, settings):
+    """What acts only after a drift: the functional penalty (the reference played beside the
+    population in the rollout, each evaluation thread's share of it with its own candidates),
+    weight protection, and the archive putting red's controller back when red returns. A small
+    drifting run writes the same bytes under every speed setting, and its penalty acts."""
+    small = ["--algo", algo, *settings, "--preset", "smoke", "--schedule", "red:2,green:2,red:2",
+             "--env", "duration=30", "--no-record", "--quiet"]
+    written = {}
+    for speed, flags in SPEEDS.items():
+        assert main([*small, *flags, "--out", str(tmp_path), "--name", speed]) == 0
+        written[speed] = _written(tmp_path / speed)
+    assert [speed for speed in SPEEDS if written[speed] != written["eager-1"]] == []
+    rows = list(csv.DictReader(io.StringIO(written["eager-1"]["metrics.csv"].decode())))
+    assert any(float(row["reg_best"]) < float(row["best"]) for row in rows)  # the penalty changed a selection
+
+
 def _compensated_sum(values, start=0):
     """Python 3.12's ``sum``: floats added with Neumaier's compensation of each rounding."""
     values = list(values)
