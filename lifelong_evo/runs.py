@@ -19,7 +19,7 @@ import numpy as np
 from algorithms import REGISTRY
 
 from .config import RunConfig, default_regulariser
-from .errors import RunDirError
+from .errors import RunDirError, UserError
 from .json_files import read_json
 from .metrics_csv import METRICS_FILE, SPECIES_COLUMNS, SPECIES_FILE, read_metrics
 from .run_files import check_config, check_controller_files, check_metrics, check_species, check_summary
@@ -191,21 +191,18 @@ def is_run_dir(path: Path) -> bool:
 
 def find_run_dirs(paths) -> list[Path]:
     """Every run directory (config.json + summary.json) at or under ``paths``, sorted."""
-    found: set[Path] = set()
+    found: dict[Path, Path] = {}  # by the folder it is, however it was named
     for given in paths:
         path = Path(given)
         if not path.exists():
             raise RunDirError(f"{path} does not exist: give run directories or folders that hold them")
-        if is_run_dir(path):
-            found.add(path)
-            continue
-        for config in path.rglob("config.json"):
-            if is_run_dir(config.parent):
-                found.add(config.parent)
+        runs = [path] if is_run_dir(path) else [c.parent for c in path.rglob("config.json") if is_run_dir(c.parent)]
+        for run in runs:
+            found.setdefault(run.resolve(), run)
     if not found:
         raise RunDirError(f"no run directory (config.json + summary.json) under {', '.join(map(str, paths))}: "
                           "run `python -m lifelong_evo run` first or check the path")
-    return sorted(found)
+    return sorted(found.values())
 
 
 def load_run(path: Path, with_metrics: bool = True) -> Run:
@@ -230,8 +227,22 @@ def load_runs(paths, with_metrics: bool = True) -> list[Run]:
 
 
 def group_runs(runs: list[Run]) -> list[list[Run]]:
-    """Runs grouped by configuration (in order of first appearance), each group sorted by seed."""
+    """Runs grouped by configuration (in order of first appearance), each group sorted by seed.
+    Two runs of one seed are two repetitions (under native arithmetic on two kinds of CPU, two
+    trajectories), but UserError where they are one run twice (a copy, or the run again under
+    other speed settings: the same figures), which would count it twice in every mean."""
     groups: dict[str, list[Run]] = {}
     for run in runs:
-        groups.setdefault(run.key, []).append(run)
+        group = groups.setdefault(run.key, [])
+        twin = next((other for other in group if other.seed == run.seed and _figures(other) == _figures(run)), None)
+        if twin is not None:
+            raise UserError(f"{twin.path} and {run.path} are one run twice (one configuration, seed {run.seed}, the "
+                            "same figures in summary.json), which would count twice in every mean: leave one out")
+        group.append(run)
     return [sorted(group, key=lambda r: (str(r.seed), str(r.path))) for group in groups.values()]
+
+
+def _figures(run: Run) -> dict[str, Any]:
+    """What a run measured: summary.json without the wall time and the machines it ran on."""
+    return {key: value for key, value in run.summary.items()
+            if key not in (SummaryLayout.WALL_TIME, SummaryLayout.MACHINES)}

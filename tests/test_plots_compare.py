@@ -326,6 +326,24 @@ def test_compare_and_plot_errors_are_one_line(tmp_path, capsys):
         assert "does not exist" in capsys.readouterr().err
 
 
+def test_one_run_counts_once(sweep, tmp_path, capsys):
+    """A copy of a run beside it (or the run again under other speed settings: the same figures)
+    counted twice in every mean: n seeds 3 for two seeds, a narrower interval. compare and plot
+    refuse it in one line naming both; one run reached by two paths is one run. (Two repetitions of
+    one seed with other figures are counted each: test_statistics.)"""
+    shutil.copytree(sweep, tmp_path / "runs")
+    shutil.copytree(sweep / "neat" / "a", tmp_path / "runs" / "backup")
+    for verb in ("compare", "plot"):
+        assert cli_main([verb, str(tmp_path / "runs"), "--out", str(tmp_path / verb)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and err.count("\n") == 1 and "one run twice" in err, err
+        assert str(tmp_path / "runs" / "backup") in err and str(tmp_path / "runs" / "neat" / "a") in err
+        assert not (tmp_path / verb).exists()
+    run = sweep / "neat" / "a"
+    assert cli_main(["compare", str(run), str(run / ".." / "a"), "--out", str(tmp_path / "once")]) == 0
+    assert "Comparison of 1 run(s)" in (tmp_path / "once" / "comparison.md").read_text()
+
+
 def test_a_broken_metrics_csv_is_named_by_file_line_and_column(tmp_path, capsys):
     """Without its header plot and compare died with a KeyError; a bad cell silently made a curve NaN."""
     run = tmp_path / "run"
