@@ -51,7 +51,7 @@ from .config import DEFAULT_REGULARISER, RunConfig
 from .errors import RESTORE, RunDirError
 from .metrics import controller_key
 from .options import LISTED_BY, parse_table, parse_value, schema
-from .schedule import ScheduleError, canonical_schedule
+from .schedule import Phase, ScheduleError, canonical_schedule
 from .summary_json import SummaryLayout
 from .tasks import task_from_table
 
@@ -345,7 +345,7 @@ def check_metrics(rows: list[dict[str, str]], path: Path, config: RunConfig, end
     ``generation_in_task``), and rows through the last generation of the ``ended`` phases that
     summary.json records (fewer: the file was cut short); RunDirError naming the line."""
     phases = config.phases()
-    starts = _phase_starts(config)
+    starts = _phase_starts(phases)
     for line, row in enumerate(rows, start=2):
         index, generation = int(row["task_index"]), int(row["generation"])
         expected = line - 2
@@ -372,7 +372,7 @@ def check_species(rows: list[dict[str, str]], path: Path, config: RunConfig, end
     that reports no species in some generation allows: each generation's rows together and in
     order, within the schedule's generations, and rows through the last generation of the
     ``ended`` phases."""
-    starts = _phase_starts(config)
+    starts = _phase_starts(config.phases())
     generations = 0
     for line, row in enumerate(rows, start=2):
         generation = int(row["generation"])
@@ -385,9 +385,8 @@ def check_species(rows: list[dict[str, str]], path: Path, config: RunConfig, end
     return rows
 
 
-def _phase_starts(config: RunConfig) -> list[int]:
-    """The first generation of each phase of ``config``'s schedule, then the schedule's length."""
-    phases = config.phases()
+def _phase_starts(phases: list[Phase]) -> list[int]:
+    """The first generation of each of a schedule's ``phases``, then the schedule's length."""
     return [sum(phase.generations for phase in phases[:k]) for k in range(len(phases) + 1)]
 
 
