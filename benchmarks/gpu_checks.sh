@@ -8,8 +8,8 @@
 #   bash benchmarks/gpu_checks.sh prepare   # here, with PyPI: the missing packages as wheels in .whl/
 #   bash benchmarks/gpu_checks.sh figures   # there, with .whl carried: the benchmarks (limits: 7 min)
 #   bash benchmarks/gpu_checks.sh tests     # there, with .whl carried: tests/test_cuda.py (limits: 6.5 min)
-#   bash benchmarks/gpu_checks.sh same-numbers  # there: the same-numbers tests on its CPU (an Intel Xeon
-#                                           # so far; issue #60 asks for a pass on Intel), under its torch
+#   bash benchmarks/gpu_checks.sh same-numbers  # there: the same-numbers tests on its CPU (an Intel Xeon,
+#                                           # family 6, model 207 so far), under its torch
 #
 # The GPU machine has Python 3.12 with torch, numpy, scipy, matplotlib and tqdm, and no network;
 # the project's other packages travel as wheels. Ray's wheel is over the size a call may carry, so
