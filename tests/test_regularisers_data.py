@@ -1,7 +1,8 @@
 """What docs/studies/regularisers-and-archive.md says of step 2's data, checked on the runs kept in
-docs/data/regularisers-and-archive: each is its trial of examples/sweep_regularisers.toml, keeps
-what the held-out protocol needs, ran under the native arithmetic on the kind of CPU of its
-family and seed's reused baseline rows, and (the plan's check) repeats its fine-tune partner's
+docs/data/regularisers-and-archive: each is its trial of examples/sweep_regularisers.toml (or, for
+a fine-tune or rehearsal partner made again by a note of the page, of examples/sweep_baselines.toml),
+keeps what the held-out protocol needs, ran under the native arithmetic on the kind of CPU the plan
+and its notes give its family and seed, and (the plan's check) repeats its fine-tune partner's
 training columns byte for byte up to where what it adds first acts: the first drift (generation
 199), or for an archive run red's return (generation 399)."""
 from __future__ import annotations
@@ -22,28 +23,35 @@ KEPT = sorted(path for path in (ROOT / "docs/data/regularisers-and-archive").glo
               if (path / "metrics.csv").is_file())
 AMD_ZEN4 = {"cpu": "AMD EPYC (family 25, model 17)", "vector_isa": "AVX512"}
 INTEL = {"cpu": "Intel(R) Xeon(R) Processor (family 6, model 167)", "vector_isa": "AVX512"}
-ON_AMD_ZEN4 = {("neat", 17), ("neat", 24), ("neat", 31), ("sep-cmaes", 24), ("sep-cmaes", 42)}
-"""The families and seeds whose reused baseline rows were made on the AMD Zen 4 kind (the plan,
-"Arithmetic and machines"); every other one's on the Intel kind."""
+ON_AMD_ZEN4 = {("neat", 17), ("neat", 24), ("neat", 31), ("sep-cmaes", 42)}
+"""The families and seeds whose new rows run on the AMD Zen 4 kind: those whose reused baseline
+rows were made there (the plan, "Arithmetic and machines"), but sep-CMA-ES seed 24, made whole on
+the Intel kind with fresh partners (the note of 2026-12-05, 04:13 UTC); every other one's on the
+Intel kind."""
+REMADE_PARTNERS = {"sep-cmaes-reg0-seed24", "sep-cmaes-rehearsal0.3-seed24"}
+"""The fine-tune and rehearsal runs that note makes again, kept beside the new rows."""
 TRAINING_COLUMNS = ("task", "generation", "best", "mean", "median", "std", "top", "species", "disabled_fraction")
 """metrics.csv's columns that the fine-tune run has too and that no regulariser writes."""
 
 
-def _trials() -> dict:
-    args = build_parser().parse_args(["sweep", "--config", str(ROOT / "examples/sweep_regularisers.toml")])
+def _trials(sweep_file: str) -> dict:
+    args = build_parser().parse_args(["sweep", "--config", str(ROOT / "examples" / sweep_file)])
     return {trial.name: trial for trial in build_grid(args).trials}
 
 
-TRIALS = _trials()
+TRIALS = _trials("sweep_regularisers.toml")
+PARTNER_TRIALS = {name: trial for name, trial in _trials("sweep_baselines.toml").items() if name in REMADE_PARTNERS}
 
 
 def test_the_sweep_is_the_plans():
-    assert len(TRIALS) == 25 and {run.name for run in KEPT} <= TRIALS.keys()
+    assert len(TRIALS) == 25 and {run.name for run in KEPT} <= TRIALS.keys() | PARTNER_TRIALS.keys()
+    assert PARTNER_TRIALS.keys() == REMADE_PARTNERS
 
 
 @pytest.mark.parametrize("run", KEPT, ids=lambda path: path.name)
 def test_a_kept_run_is_its_trial_on_its_kind_of_cpu(run):
-    assert RunDir(run).setting_differences(TRIALS[run.name].config.to_dict()) == []
+    trial = TRIALS.get(run.name) or PARTNER_TRIALS[run.name]
+    assert RunDir(run).setting_differences(trial.config.to_dict()) == []
     assert_keeps_what_held_out_scoring_needs(run)
     config, summary = (json.loads((run / name).read_text()) for name in ("config.json", "summary.json"))
     planned = AMD_ZEN4 if (config["algo"], config["seed"]) in ON_AMD_ZEN4 else INTEL
@@ -58,10 +66,13 @@ def _columns(path: Path, last_generation: int) -> list[tuple[str, ...]]:
 
 
 def _fine_tune_partner(algo: str, seed: int) -> Path:
-    """The fine-tune run the baselines page pairs with this family and seed: its own baselines
-    run, or for sep-CMA-ES seeds 13, 17 and 31 the families study's lambda-0 run it reuses."""
-    baseline = ROOT / "docs/data/baselines" / f"{algo}-reg0-seed{seed}"
-    return baseline if baseline.is_dir() else ROOT / "docs/data/study/families" / f"reg0-seed{seed}"
+    """The fine-tune run this family and seed's new rows pair with: one made again for them, kept
+    beside them; else the baselines page's, its own baselines run or, for sep-CMA-ES seeds 13, 17
+    and 31, the families study's lambda-0 run it reuses."""
+    for folder in (f"regularisers-and-archive/{algo}-reg0-seed{seed}", f"baselines/{algo}-reg0-seed{seed}"):
+        if (ROOT / "docs/data" / folder).is_dir():
+            return ROOT / "docs/data" / folder
+    return ROOT / "docs/data/study/families" / f"reg0-seed{seed}"
 
 
 @pytest.mark.parametrize("run", KEPT, ids=lambda path: path.name)
