@@ -4,7 +4,8 @@ a fine-tune or rehearsal partner made again by a note of the page, of examples/s
 keeps what the held-out protocol needs, ran under the native arithmetic on the kind of CPU the plan
 and its notes give its family and seed, and (the plan's check) repeats its fine-tune partner's
 training columns byte for byte up to where what it adds first acts: the first drift (generation
-199), or for an archive run red's return (generation 399)."""
+199), or for an archive run red's return (generation 399); and that the page's row of Q3's second
+test is its snippet's result on the kept runs."""
 from __future__ import annotations
 
 import csv
@@ -13,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from lifelong_evo.analysis.comparison import comparison, format_difference
+from lifelong_evo.analysis.statistics import welch_difference
 from lifelong_evo.commands.cli import build_parser
 from lifelong_evo.commands.grid import build_grid
 from lifelong_evo.rundir import RunDir
@@ -91,3 +94,21 @@ def test_a_kept_run_repeats_its_fine_tune_partner_until_what_it_adds_acts(run):
     last = 399 if config.get("archive") else 199
     mine = _columns(run / "metrics.csv", last)
     assert len(mine) == last + 1 and mine == _columns(partner / "metrics.csv", last)
+
+
+Q3_ROW = "| red F_top: NEAT's paired difference from its fine-tune minus sep-CMA-ES's | held-out | {} |"
+"""The study page's row of Q3's second test (the note of 2026-12-04, 22:30 UTC, run as its snippet)."""
+
+
+def test_the_pages_q3_welch_row_is_the_snippets_result_on_the_kept_runs():
+    functional = {run.name: run for run in KEPT if "-functional-" in run.name}
+    assert sorted(functional) == sorted(name for name in TRIALS if "-functional-" in name)  # all ten
+    partners = [_fine_tune_partner(*(json.loads((run / "config.json").read_text())[key] for key in ("algo", "seed")))
+                for run in functional.values()]
+    rows = comparison([*functional.values(), *partners]).rows
+    effect = {row["configuration"]: row["values"] for row in rows if row["statistic"] == "paired difference"
+              and row["episodes"] == "held-out" and row["metric"] == "F_top red at end of phase 1"}
+    result = welch_difference(effect["neat reg=1 red-green-red regulariser=functional"],
+                              effect["sep-cmaes reg=10 red-green-red regulariser=functional"])
+    page = (ROOT / "docs/studies/regularisers-and-archive.md").read_text()
+    assert Q3_ROW.format(" | ".join(format_difference(result))) in page
