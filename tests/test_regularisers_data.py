@@ -29,10 +29,9 @@ INTEL = {"cpu": "Intel(R) Xeon(R) Processor (family 6, model 167)", "vector_isa"
 ON_AMD_ZEN4 = {("neat", 17), ("neat", 24), ("neat", 31), ("sep-cmaes", 24), ("sep-cmaes", 42)}
 """The families and seeds whose reused baseline rows were made on the AMD Zen 4 kind (the plan,
 "Arithmetic and machines"); every other one's on the Intel kind."""
-REMADE_ON_INTEL = {("sep-cmaes", 24): {"sep-cmaes-reg0-seed24", "sep-cmaes-rehearsal0.3-seed24"}}
-"""A family and seed made whole on the Intel kind with fresh fine-tune and rehearsal partners, kept
-beside the new rows, where those partners are kept (the note of 2026-12-05, 04:13 UTC)."""
-REMADE_PARTNERS = set().union(*REMADE_ON_INTEL.values())
+REMADE_PARTNERS = {"sep-cmaes-reg0-seed24", "sep-cmaes-rehearsal0.3-seed24"}
+"""Fresh fine-tune and rehearsal partners made on the Intel kind for a family and seed made whole
+there, kept beside the new rows (the note of 2026-12-05, 04:13 UTC)."""
 TRAINING_COLUMNS = ("task", "generation", "best", "mean", "median", "std", "top", "species", "disabled_fraction")
 """metrics.csv's columns that the fine-tune run has too and that no regulariser writes."""
 
@@ -51,9 +50,20 @@ def test_the_sweep_is_the_plans():
     assert PARTNER_TRIALS.keys() == REMADE_PARTNERS
 
 
+def _fine_tune_partner(algo: str, seed: int) -> Path:
+    """The fine-tune run this family and seed's new rows pair with: one made again for them, kept
+    beside them; else the baselines page's, its own baselines run or, for sep-CMA-ES seeds 13, 17
+    and 31, the families study's lambda-0 run it reuses."""
+    for folder in (f"regularisers-and-archive/{algo}-reg0-seed{seed}", f"baselines/{algo}-reg0-seed{seed}"):
+        if (ROOT / "docs/data" / folder).is_dir():
+            return ROOT / "docs/data" / folder
+    return ROOT / "docs/data/study/families" / f"reg0-seed{seed}"
+
+
 def _planned_kind(algo: str, seed: int) -> dict:
-    remade = REMADE_ON_INTEL.get((algo, seed), ())
-    if any((ROOT / "docs/data/regularisers-and-archive" / name).is_dir() for name in remade):
+    """Intel where the seed's partners were made again (kept beside the new rows), else the kind of
+    its reused baseline rows."""
+    if _fine_tune_partner(algo, seed).parent.name == "regularisers-and-archive":
         return INTEL
     return AMD_ZEN4 if (algo, seed) in ON_AMD_ZEN4 else INTEL
 
@@ -73,16 +83,6 @@ def _columns(path: Path, last_generation: int) -> list[tuple[str, ...]]:
     with open(path, newline="") as handle:
         return [tuple(row.get(name, "") for name in TRAINING_COLUMNS) for row in csv.DictReader(handle)
                 if int(row["generation"]) <= last_generation]
-
-
-def _fine_tune_partner(algo: str, seed: int) -> Path:
-    """The fine-tune run this family and seed's new rows pair with: one made again for them, kept
-    beside them; else the baselines page's, its own baselines run or, for sep-CMA-ES seeds 13, 17
-    and 31, the families study's lambda-0 run it reuses."""
-    for folder in (f"regularisers-and-archive/{algo}-reg0-seed{seed}", f"baselines/{algo}-reg0-seed{seed}"):
-        if (ROOT / "docs/data" / folder).is_dir():
-            return ROOT / "docs/data" / folder
-    return ROOT / "docs/data/study/families" / f"reg0-seed{seed}"
 
 
 @pytest.mark.parametrize("run", KEPT, ids=lambda path: path.name)
